@@ -1,0 +1,324 @@
+"""Hyper-viscoelastic Gent dielectric elastomer (paper Eqs. 18-20, 37-39).
+
+All energies are per unit reference volume (J/m^3) and pure functions of the
+deformation gradient ``F`` (3 x 3), the nominal electric field ``E`` (3,) (V/m,
+``E = -Grad phi`` in the reference configuration) and the viscous right
+Cauchy-Green tensors ``Cv`` (n_units, 3, 3) of the parallel viscous units.
+Batch over Gauss points with ``jax.vmap``. Forces and tangents come from
+``jax.grad`` / ``jax.jacfwd`` of ``free_energy``; nothing here is hand-derived.
+
+Free energy (NOTES.md, Eqs. 18-20)::
+
+    psi_inf = -mu_inf Jm_inf / 2 ln(1 - (J^(-2/3) I1 - 3) / Jm_inf)
+              + K_inf / 2 (J - 1)^2 - eps / 2 J E^T C^-1 E
+    psi_s   = -mu_s Jm_s / 2 ln(1 - (Je^(-2/3) I1e - 3) / Jm_s) + K_s / 2 (Je - 1)^2
+    I1e = tr(C Cv_s^-1),  Je = J / sqrt(det Cv_s)
+
+Viscous flow (Eq. 37, cleaned up in NOTES.md)::
+
+    dCv/dt = A (C - tr(C Cv^-1) Cv / 3),   A = (2 mu_s / eta_s) Je^(-2/3) / H_s
+
+integrated by a backward-Euler step that keeps ``det Cv`` exactly constant (see
+``viscous_update``).
+"""
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class GentLimitError(FloatingPointError):
+    """A state reached (or passed) the Gent limiting stretch: ln(1 - ...) is undefined."""
+
+
+class Material(eqx.Module):
+    """Gent dielectric elastomer with ``n_units`` parallel viscous Gent units.
+
+    Scalars are float arrays (so the material is a differentiable pytree); the
+    viscous fields are (n_units,) arrays (length 0 = hyperelastic).
+
+    Attributes:
+      mu_inf: equilibrium shear modulus (Pa).
+      K_inf: equilibrium bulk modulus (Pa).
+      Jm_inf: equilibrium Gent limit I_lim (-).
+      eps: permittivity (F/m).
+      rho: mass density (kg/m^3).
+      mu, K, Jm, eta: per viscous unit shear modulus (Pa), bulk modulus (Pa),
+        Gent limit (-), viscosity (Pa s); relaxation time tau = eta / mu.
+    """
+
+    mu_inf: jax.Array
+    K_inf: jax.Array
+    Jm_inf: jax.Array
+    eps: jax.Array
+    rho: jax.Array
+    mu: jax.Array
+    K: jax.Array
+    Jm: jax.Array
+    eta: jax.Array
+
+    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=()):
+        self.mu_inf = jnp.asarray(mu_inf, dtype=float)
+        self.K_inf = jnp.asarray(K_inf, dtype=float)
+        self.Jm_inf = jnp.asarray(Jm_inf, dtype=float)
+        self.eps = jnp.asarray(eps, dtype=float)
+        self.rho = jnp.asarray(rho, dtype=float)
+        n = len(np.atleast_1d(np.asarray(mu, dtype=float)))
+        arrs = []
+        for name, v in (("mu", mu), ("K", K), ("Jm", Jm), ("eta", eta)):
+            a = jnp.atleast_1d(jnp.asarray(v, dtype=float)).reshape(-1)
+            if a.shape[0] != n:
+                raise ValueError(
+                    f"Material: viscous parameter {name!r} has {a.shape[0]} entries, "
+                    f"but mu has {n} (one per viscous unit)"
+                )
+            arrs.append(a)
+        self.mu, self.K, self.Jm, self.eta = arrs
+
+    @property
+    def n_units(self) -> int:
+        return int(self.mu.shape[0])
+
+    def validate(self) -> "Material":
+        """Raise ValueError naming the parameter and bound for any unphysical value."""
+        checks = [
+            ("mu_inf", self.mu_inf, 0.0),
+            ("K_inf", self.K_inf, 0.0),
+            ("Jm_inf", self.Jm_inf, 0.0),
+            ("eps", self.eps, -np.inf),
+            ("rho", self.rho, 0.0),
+            ("mu", self.mu, 0.0),
+            ("K", self.K, -np.inf),
+            ("Jm", self.Jm, 0.0),
+            ("eta", self.eta, 0.0),
+        ]
+        for name, value, lower in checks:
+            try:
+                v = np.asarray(value, dtype=float)
+            except Exception:  # traced: cannot check
+                continue
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"Material parameter {name} = {v} is not finite")
+            if np.any(v <= lower) if lower == 0.0 else np.any(v < lower):
+                raise ValueError(f"Material parameter {name} = {v} must be > {lower}")
+        if np.any(np.asarray(self.eps) < 0):
+            raise ValueError(f"Material parameter eps = {self.eps} must be >= 0")
+        if np.any(np.asarray(self.K) < 0):
+            raise ValueError(f"Material parameter K = {self.K} must be >= 0")
+        return self
+
+
+def _safe_log1m(x):
+    """ln(1 - x) for x < 1; returns 0 (not NaN) past the limit, which is flagged elsewhere."""
+    ok = x < 1.0
+    return jnp.where(ok, jnp.log1p(-jnp.where(ok, x, 0.0)), 0.0)
+
+
+def gent_energy(I1bar, mu, Jm):
+    """Gent energy -mu Jm/2 ln(1 - (I1bar - 3)/Jm) (Eq. 18), I1bar the isochoric first invariant."""
+    return -0.5 * mu * Jm * _safe_log1m((I1bar - 3.0) / Jm)
+
+
+def gent_margin(I1bar, Jm):
+    """H = 1 - (I1bar - 3)/Jm: positive inside the Gent limit, <= 0 at or past it."""
+    return 1.0 - (I1bar - 3.0) / Jm
+
+
+def equilibrium_energy(F, E, mat: Material):
+    """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3."""
+    C = F.T @ F
+    J = jnp.linalg.det(F)
+    I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
+    elec = -0.5 * mat.eps * J * (E @ jnp.linalg.solve(C, E))
+    return gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + 0.5 * mat.K_inf * (J - 1.0) ** 2 + elec
+
+
+def _viscous_invariants(F, Cv):
+    """(Je, I1e) of one unit: Je = J / sqrt(det Cv), I1e = tr(C Cv^-1)."""
+    C = F.T @ F
+    J = jnp.linalg.det(F)
+    Je = J / jnp.sqrt(jnp.linalg.det(Cv))
+    I1e = jnp.trace(jnp.linalg.solve(Cv, C))
+    return Je, I1e
+
+
+def viscous_energy(F, Cv, mu, K, Jm):
+    """psi_s(F, Cv) of one viscous unit (Eq. 19). J/m^3."""
+    Je, I1e = _viscous_invariants(F, Cv)
+    return gent_energy(Je ** (-2.0 / 3.0) * I1e, mu, Jm) + 0.5 * K * (Je - 1.0) ** 2
+
+
+def free_energy(F, E, Cv, mat: Material):
+    """Total free energy psi = psi_inf + sum_s psi_s (Eq. 20). Cv: (n_units, 3, 3)."""
+    psi = equilibrium_energy(F, E, mat)
+    if mat.n_units:
+        psi = psi + jnp.sum(jax.vmap(viscous_energy, in_axes=(None, 0, 0, 0, 0))(F, Cv, mat.mu, mat.K, mat.Jm))
+    return psi
+
+
+def min_gent_margin(F, Cv, mat: Material):
+    """Smallest Gent margin H over the equilibrium branch and every viscous unit."""
+    C = F.T @ F
+    J = jnp.linalg.det(F)
+    h = gent_margin(J ** (-2.0 / 3.0) * jnp.trace(C), mat.Jm_inf)
+    if mat.n_units:
+        def unit(Cv_s, Jm):
+            Je, I1e = _viscous_invariants(F, Cv_s)
+            return gent_margin(Je ** (-2.0 / 3.0) * I1e, Jm)
+
+        h = jnp.minimum(h, jnp.min(jax.vmap(unit)(Cv, mat.Jm)))
+    return h
+
+
+# ---------------------------------------------------------------------------
+# Viscous update: backward Euler that keeps det Cv constant.
+# ---------------------------------------------------------------------------
+#
+# Backward Euler on the flow rule reads Cv (1 + dt A tr(C Cv^-1)/3) = Cv_old + dt A C.
+# The flow is isochoric (d det Cv / dt = 0), which the literal update keeps only to
+# O(dt^2) per step. We keep the same structure, Cv = (Cv_old + dt A C) / kappa, and pick
+# the scalar kappa so that det Cv = det Cv_old exactly (kappa = 1 + dt A tr(C Cv_old^-1)/3
+# + O(dt^2): the same first-order scheme). Je is then fixed, and the implicit unknown is
+# the scalar rate A = (2 mu / eta) Je^(-2/3) / H(Cv): one scalar Newton solve, whose
+# derivative with respect to F comes from the implicit function theorem.
+
+
+def _cv_from_rate(A, C, Cv_old, dt):
+    B = Cv_old + dt * A * C
+    kappa = (jnp.linalg.det(B) / jnp.linalg.det(Cv_old)) ** (1.0 / 3.0)
+    return B / kappa
+
+
+def _rate_residual(A, F, Cv_old, dt, mu, eta, Jm):
+    C = F.T @ F
+    Cv = _cv_from_rate(A, C, Cv_old, dt)
+    Je, I1e = _viscous_invariants(F, Cv)
+    H = gent_margin(Je ** (-2.0 / 3.0) * I1e, Jm)
+    return A * H - (2.0 * mu / eta) * Je ** (-2.0 / 3.0)
+
+
+@jax.custom_jvp
+def _solve_rate(F, Cv_old, dt, mu, eta, Jm):
+    """Scalar Newton for A (primal); derivatives by the implicit function theorem."""
+    Je, I1e = _viscous_invariants(F, Cv_old)
+    H0 = gent_margin(Je ** (-2.0 / 3.0) * I1e, Jm)
+    A0 = (2.0 * mu / eta) * Je ** (-2.0 / 3.0) / jnp.maximum(H0, 1e-3)
+    g = lambda A: _rate_residual(A, F, Cv_old, dt, mu, eta, Jm)
+    dg = jax.grad(g)
+
+    def body(carry):
+        A, _, k = carry
+        r = g(A)
+        step = r / dg(A)
+        return A - step, jnp.abs(step), k + 1
+
+    def cond(carry):
+        A, step, k = carry
+        return (step > 1e-15 * jnp.abs(A) + 1e-300) & (k < 50)
+
+    A, _, _ = jax.lax.while_loop(cond, body, (A0, jnp.asarray(jnp.inf, A0.dtype), 0))
+    return A
+
+
+@_solve_rate.defjvp
+def _solve_rate_jvp(primals, tangents):
+    A = _solve_rate(*primals)
+    g_A = jax.grad(_rate_residual, argnums=0)(A, *primals)
+    _, g_dot = jax.jvp(lambda *p: _rate_residual(A, *p), primals, tangents)
+    return A, -g_dot / g_A
+
+
+def viscous_update(F, Cv_old, dt, mu, eta, Jm):
+    """One backward-Euler step of the flow rule for one unit (Eqs. 37-39).
+
+    Args:
+      F: (3, 3) deformation gradient at the end of the step.
+      Cv_old: (3, 3) viscous tensor at the start of the step.
+      dt: step (s); mu (Pa), eta (Pa s), Jm (-): the unit's parameters.
+    Returns:
+      (3, 3) Cv at the end of the step; symmetric, det Cv = det Cv_old to round-off,
+      differentiable in every argument (implicit function theorem).
+    """
+    A = _solve_rate(F, Cv_old, dt, mu, eta, Jm)
+    return _cv_from_rate(A, F.T @ F, Cv_old, dt)
+
+
+def viscous_rate(F, Cv, mu, eta, Jm):
+    """dCv/dt of the flow rule at (F, Cv) (NOTES.md form of Eq. 37). (3, 3)."""
+    C = F.T @ F
+    Je, I1e = _viscous_invariants(F, Cv)
+    H = gent_margin(Je ** (-2.0 / 3.0) * I1e, Jm)
+    A = (2.0 * mu / eta) * Je ** (-2.0 / 3.0) / H
+    return A * (C - I1e / 3.0 * Cv)
+
+
+def update_all_units(F, Cv_old, dt, mat: Material):
+    """viscous_update for every unit: Cv_old (n_units, 3, 3) -> (n_units, 3, 3)."""
+    if not mat.n_units:
+        return Cv_old
+    return jax.vmap(viscous_update, in_axes=(None, 0, None, 0, 0, 0))(F, Cv_old, dt, mat.mu, mat.eta, mat.Jm)
+
+
+def stress_and_update(F, E, Cv_old, dt, mat: Material):
+    """First Piola-Kirchhoff stress at the end of a step and the updated Cv.
+
+    P = d psi / d F at fixed Cv_new, with Cv_new = viscous_update(F, Cv_old); the
+    total derivative dP/dF (``jax.jacfwd`` of this function) is the consistent
+    tangent including dCv/dF.
+
+    Returns:
+      P (3, 3) in Pa, Cv_new (n_units, 3, 3).
+    """
+    Cv_new = update_all_units(F, Cv_old, dt, mat)
+    P = jax.grad(free_energy, argnums=0)(F, E, Cv_new, mat)
+    return P, Cv_new
+
+
+def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material):
+    """(P, D, Cv_new) with D = dP/dF (3, 3, 3, 3), the consistent tangent."""
+
+    def f(F_):
+        P, Cv_new = stress_and_update(F_, E, Cv_old, dt, mat)
+        return P, (P, Cv_new)
+
+    D, (P, Cv_new) = jax.jacfwd(f, has_aux=True)(F)
+    return P, D, Cv_new
+
+
+def check_state(F, Cv, mat: Material, where: str = "") -> None:
+    """Raise GentLimitError (eager, not jittable) if any point is at or past a Gent limit.
+
+    Args:
+      F: (..., 3, 3) deformation gradients; Cv: (..., n_units, 3, 3).
+    """
+    F = jnp.asarray(F)
+    batch = F.shape[:-2]
+    Ff = F.reshape(-1, 3, 3)
+    Cvf = jnp.asarray(Cv).reshape((-1, mat.n_units, 3, 3)) if mat.n_units else jnp.zeros((Ff.shape[0], 0, 3, 3))
+    H = np.asarray(jax.vmap(min_gent_margin, in_axes=(0, 0, None))(Ff, Cvf, mat))
+    J = np.asarray(jnp.linalg.det(Ff))
+    if np.any(J <= 0):
+        i = int(np.argmin(J))
+        raise GentLimitError(f"{where}inverted material: det F = {J[i]:.3e} <= 0 at point {np.unravel_index(i, batch)}")
+    if np.any(H <= 0):
+        i = int(np.argmin(H))
+        raise GentLimitError(
+            f"{where}state past the Gent limit: 1 - (I1bar - 3)/Jm = {H[i]:.3e} <= 0 at point "
+            f"{np.unravel_index(i, batch) if batch else ()}"
+        )
+
+
+def evaluate(F, E, Cv, mat: Material):
+    """Eager, checked evaluation: (psi, P) at one or many points; raises GentLimitError.
+
+    Args:
+      F: (..., 3, 3); E: (..., 3); Cv: (..., n_units, 3, 3).
+    """
+    check_state(F, Cv, mat)
+    F = jnp.asarray(F)
+    fn = lambda F_, E_, Cv_: (free_energy(F_, E_, Cv_, mat), jax.grad(free_energy)(F_, E_, Cv_, mat))
+    for _ in range(F.ndim - 2):
+        fn = jax.vmap(fn)
+    return fn(F, jnp.asarray(E), jnp.asarray(Cv))
