@@ -1,0 +1,95 @@
+"""Voltage histories and prescribed-motion histories: callables t (s) -> value.
+
+Each history is an ``equinox.Module`` whose parameters are differentiable
+fields, evaluated with jax.numpy so it can be sampled on a time grid inside
+jit (``history(times)``).
+"""
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class RampHold(eqx.Module):
+    """Paper Eq. (41): phi = phi_m/2 (1 + sin(pi t / t_ramp - pi/2)) for t <= t_ramp, then phi_m.
+
+    phi_m in V, t_ramp in s (the paper uses 1 s).
+    """
+
+    phi_m: jax.Array
+    t_ramp: jax.Array
+
+    def __init__(self, phi_m, t_ramp=1.0):
+        self.phi_m = jnp.asarray(phi_m, dtype=float)
+        self.t_ramp = jnp.asarray(t_ramp, dtype=float)
+
+    def __call__(self, t):
+        t = jnp.asarray(t, dtype=float)
+        ramp = 0.5 * self.phi_m * (1.0 + jnp.sin(jnp.pi * t / self.t_ramp - 0.5 * jnp.pi))
+        return jnp.where(t <= self.t_ramp, ramp, self.phi_m)
+
+
+class Sine(eqx.Module):
+    """Paper Eq. (42): phi = phi_m/2 (1 + sin(2 pi f t + 1.5 pi)), from 0 V at t = 0. phi_m in V, f in Hz."""
+
+    phi_m: jax.Array
+    freq: jax.Array
+
+    def __init__(self, phi_m, freq):
+        self.phi_m = jnp.asarray(phi_m, dtype=float)
+        self.freq = jnp.asarray(freq, dtype=float)
+
+    def __call__(self, t):
+        return 0.5 * self.phi_m * (1.0 + jnp.sin(2.0 * jnp.pi * self.freq * jnp.asarray(t) + 1.5 * jnp.pi))
+
+
+class PiecewiseLinear(eqx.Module):
+    """Linear interpolation through (times, values); constant outside. Values in V (or -)."""
+
+    times: jax.Array
+    values: jax.Array
+
+    def __init__(self, times, values):
+        times = np.asarray(times, dtype=float)
+        if times.ndim != 1 or times.size < 1 or np.any(np.diff(times) <= 0):
+            raise ValueError("PiecewiseLinear: times must be a strictly increasing 1-D sequence")
+        values = jnp.asarray(values, dtype=float)
+        if values.shape != times.shape:
+            raise ValueError(f"PiecewiseLinear: {values.shape[0]} values for {times.size} times")
+        self.times = jnp.asarray(times)
+        self.values = values
+
+    def __call__(self, t):
+        return jnp.interp(jnp.asarray(t, dtype=float), self.times, self.values)
+
+
+class Constant(eqx.Module):
+    """A constant value (V or -)."""
+
+    value: jax.Array
+
+    def __init__(self, value):
+        self.value = jnp.asarray(value, dtype=float)
+
+    def __call__(self, t):
+        return jnp.zeros_like(jnp.asarray(t, dtype=float)) + self.value
+
+
+class Scaled(eqx.Module):
+    """``scale * base(t)``: e.g. phibar h sqrt(mu/eps) for the torsional strip."""
+
+    base: eqx.Module
+    scale: jax.Array
+
+    def __call__(self, t):
+        return self.scale * self.base(t)
+
+
+def sample(histories, times) -> jax.Array:
+    """Evaluate a sequence of histories on a time grid: (n_times, n_histories)."""
+    times = jnp.asarray(times, dtype=float)
+    if not histories:
+        return jnp.zeros((times.shape[0], 0))
+    return jnp.stack([jnp.broadcast_to(h(times), times.shape) for h in histories], axis=1)

@@ -1,0 +1,269 @@
+"""Mesh + material + constraints -> residual, tangent and energies (paper Eqs. 21-30).
+
+The discrete model is a ``Model`` pytree: per-Gauss-point reference data
+(shape-function gradients ``G``, volumes ``dV``, unit-potential gradients),
+element mass matrices, the material and the prescribed-motion directions are
+traced arrays (differentiable in geometry and material); integer topology and
+the constraint split live in a static ``Structure``.
+
+Element force and tangent use the free energy only as a function of F
+(F = e^T G is linear in the element coordinates e):
+
+    f_e[a, i] = sum_g dV_g G_g[a, j] P_g[i, j],        P = d psi / d F
+    K_e[a i, b k] = sum_g dV_g G_g[a, j] D_g[i j k l] G_g[b, l],  D = dP/dF
+
+with D the consistent tangent (viscous update included, see
+``material.stress_tangent_and_update``).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import element as el
+from .constraints import Constraints
+from .material import Material, free_energy, min_gent_margin, stress_and_update, stress_tangent_and_update
+from .mesh import Mesh, Static
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Structure:
+    """Static (integer) description of a discrete model."""
+
+    conn: np.ndarray  # (n_el, 8)
+    slots: np.ndarray  # (n_el, 32) global slot index 4 node + k
+    edofs: np.ndarray  # (n_el, 96) global coordinate index
+    free: np.ndarray  # (n_free,)
+    constrained: np.ndarray  # (n_constrained,)
+    n_dofs: int
+    gauss_order: int
+    dof_scale: np.ndarray  # (n_free,) length scale of each free coordinate (m for positions, 1 for gradients)
+    node_sets: dict
+
+    @property
+    def n_free(self) -> int:
+        return int(self.free.size)
+
+    @property
+    def n_nodes(self) -> int:
+        return self.n_dofs // 12
+
+
+class Model(eqx.Module):
+    """Discrete DEA model: see the module docstring. Build with ``build_model``."""
+
+    q0: jax.Array  # (n_dofs,) reference coordinates
+    N: jax.Array  # (n_el, n_gp, 32)
+    G: jax.Array  # (n_el, n_gp, 32, 3)
+    dV: jax.Array  # (n_el, n_gp)
+    field_dirs: jax.Array  # (n_channels, n_el, n_gp, 3) Grad of unit potential (1/m)
+    mass_e: jax.Array  # (n_el, 32, 32) compact element mass (kg)
+    material: Material
+    damping: jax.Array  # c_d (1/s): C_d = c_d M
+    gravity: jax.Array  # (3,) m/s^2
+    prescribed_dirs: jax.Array  # (n_motion_channels, n_constrained)
+    _structure: Static = eqx.field(static=True)
+
+    @property
+    def structure(self) -> Structure:
+        return self._structure.value
+
+    @property
+    def n_gauss(self) -> int:
+        return int(self.dV.shape[1])
+
+
+def build_model(
+    mesh: Mesh,
+    material: Material,
+    constraints: Constraints | None = None,
+    gauss_order: int = 3,
+    damping: float = 0.0,
+    gravity=(0.0, 0.0, 0.0),
+) -> Model:
+    """Assemble a ``Model`` (differentiable in mesh arrays and material)."""
+    if constraints is None:
+        constraints = Constraints(mesh.n_dofs)
+    if constraints.n_dofs != mesh.n_dofs:
+        raise ValueError(f"constraints are for {constraints.n_dofs} coordinates, mesh has {mesh.n_dofs}")
+    N, G, dV = el.mesh_reference_data(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, int(gauss_order))
+    try:
+        dv = np.asarray(dV)
+        if np.any(dv <= 0):
+            e = int(np.argmin(dv.min(axis=1)))
+            raise ValueError(f"element {e} has a non-positive reference volume Jacobian: check its orientation")
+        ell = float(np.cbrt(dv.sum() / dv.shape[0]))
+    except jax.errors.TracerArrayConversionError:
+        ell = 1.0
+    conn = mesh.conn
+    slots = (4 * conn[:, :, None] + np.arange(4)).reshape(len(conn), 32)
+    edofs = (3 * slots[:, :, None] + np.arange(3)).reshape(len(conn), 96)
+    free, constrained, dirs = constraints.split()
+    is_pos = (free % 12) < 3
+    dof_scale = np.where(is_pos, ell, 1.0)
+    structure = Structure(
+        conn=conn,
+        slots=slots,
+        edofs=edofs,
+        free=free,
+        constrained=constrained,
+        n_dofs=mesh.n_dofs,
+        gauss_order=int(gauss_order),
+        dof_scale=dof_scale,
+        node_sets=dict(mesh.node_sets),
+    )
+    pot = mesh.potential[:, conn, :]  # (n_ch, n_el, 8, 4)
+    pot = pot.reshape(pot.shape[0], pot.shape[1], 32)
+    field_dirs = jnp.einsum("cea,egai->cegi", pot, G)
+    # the mass integrand is of degree 6 per direction: 4 points are exact (a lower
+    # stiffness rule would leave the mass matrix rank deficient)
+    Nm, _, dVm = (N, G, dV) if gauss_order >= 4 else el.mesh_reference_data(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, 4)
+    mass_e = jax.vmap(el.element_mass, in_axes=(0, 0, None))(Nm, dVm, material.rho)
+    return Model(
+        q0=mesh.reference_coordinates(),
+        N=N,
+        G=G,
+        dV=dV,
+        field_dirs=field_dirs,
+        mass_e=mass_e,
+        material=material,
+        damping=jnp.asarray(damping, dtype=float),
+        gravity=jnp.asarray(gravity, dtype=float),
+        prescribed_dirs=jnp.asarray(dirs),
+        _structure=Static(structure),
+    )
+
+
+# ----------------------------------------------------------------------------- kinematics
+
+
+def full_coordinates(model: Model, z: jax.Array, u: jax.Array) -> jax.Array:
+    """q = q_p(t) + T z: free values z (n_free,), motion amplitudes u (n_motion,) -> q (n_dofs,)."""
+    s = model.structure
+    qc = model.q0[s.constrained] + u @ model.prescribed_dirs
+    return jnp.zeros(s.n_dofs, dtype=z.dtype).at[s.free].set(z).at[s.constrained].set(qc)
+
+
+def element_coordinates(model: Model, q: jax.Array) -> jax.Array:
+    """(n_el, 32, 3) element coordinates from the global vector q (n_dofs,)."""
+    return q.reshape(-1, 3)[model.structure.slots]
+
+
+def scatter_slots(model: Model, fe: jax.Array) -> jax.Array:
+    """Sum element slot vectors (n_el, 32, 3) into a global vector (n_dofs,)."""
+    s = model.structure
+    return jnp.zeros((s.n_dofs // 3, 3), fe.dtype).at[s.slots].add(fe).reshape(-1)
+
+
+def deformation_gradients(model: Model, q: jax.Array) -> jax.Array:
+    """(n_el, n_gp, 3, 3) F at every Gauss point (Eq. 36)."""
+    return jnp.einsum("eai,egaj->egij", element_coordinates(model, q), model.G)
+
+
+def nominal_field(model: Model, phi: jax.Array) -> jax.Array:
+    """(n_el, n_gp, 3) nominal field E = -sum_c phi_c Grad(unit potential_c) (V/m)."""
+    return -jnp.einsum("c,cegi->egi", jnp.asarray(phi, dtype=float), model.field_dirs)
+
+
+def gauss_point_positions(model: Model, q: jax.Array) -> jax.Array:
+    """(n_el, n_gp, 3) positions of the Gauss points for coordinates q."""
+    return jnp.einsum("eai,ega->egi", element_coordinates(model, q), model.N)
+
+
+# ----------------------------------------------------------------------------- forces
+
+
+def initial_viscous_state(model: Model) -> jax.Array:
+    """(n_el, n_gp, n_units, 3, 3) Cv = I (material at rest)."""
+    n_el, n_gp = model.dV.shape
+    return jnp.broadcast_to(jnp.eye(3), (n_el, n_gp, model.material.n_units, 3, 3))
+
+
+def _per_point(fn, model):
+    return jax.vmap(jax.vmap(fn, in_axes=(0, 0, 0, None, None)), in_axes=(0, 0, 0, None, None))
+
+
+def internal_force(model: Model, q, E, Cv_old, dt):
+    """Internal force and the viscous state it implies at the end of a step.
+
+    Args:
+      q: (n_dofs,) coordinates; E: (n_el, n_gp, 3) nominal field; Cv_old:
+      (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s).
+    Returns:
+      f (n_dofs,) in N, Cv_new like Cv_old.
+    """
+    F = deformation_gradients(model, q)
+    P, Cv_new = _per_point(stress_and_update, model)(F, E, Cv_old, dt, model.material)
+    fe = jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
+    return scatter_slots(model, fe), Cv_new
+
+
+def element_tangents(model: Model, q, E, Cv_old, dt):
+    """Element force vectors and consistent tangents.
+
+    Returns:
+      fe (n_el, 32, 3), Ke (n_el, 96, 96), Cv_new.
+    """
+    F = deformation_gradients(model, q)
+    P, D, Cv_new = _per_point(stress_tangent_and_update, model)(F, E, Cv_old, dt, model.material)
+    fe = jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
+    Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G)
+    n_el = Ke.shape[0]
+    return fe, Ke.reshape(n_el, 96, 96), Cv_new
+
+
+def mass_apply(model: Model, x: jax.Array) -> jax.Array:
+    """M x for x (n_dofs,): element-wise (Mc_e (x) I3) products, summed."""
+    xe = element_coordinates(model, x)
+    return scatter_slots(model, jnp.einsum("eab,ebi->eai", model.mass_e, xe))
+
+
+def mass_elements(model: Model) -> jax.Array:
+    """(n_el, 96, 96) full element mass matrices Mc_e (x) I3."""
+    return jnp.einsum("eab,ij->eaibj", model.mass_e, jnp.eye(3)).reshape(-1, 96, 96)
+
+
+def gravity_force(model: Model) -> jax.Array:
+    """(n_dofs,) generalized gravity force int rho N g dV = M (1 (x) g) summed over position slots.
+
+    Uses the exact mass matrix: the position shape functions sum to 1 and the
+    gradient functions to 0 within an element, so int rho N dV = Mc @ [1 on position slots]."""
+    ones = jnp.zeros((model.mass_e.shape[0], 8, 4)).at[:, :, 0].set(1.0).reshape(-1, 32)
+    fe = jnp.einsum("eab,eb,i->eai", model.mass_e, ones, model.gravity)
+    return scatter_slots(model, fe)
+
+
+def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:
+    """Dense (n_free, n_free) matrix from element matrices (n_el, 96, 96)."""
+    s = model.structure
+    pos = np.full(s.n_dofs, s.n_free, dtype=np.int64)  # constrained -> dropped row/col
+    pos[s.free] = np.arange(s.n_free)
+    idx = pos[s.edofs]
+    K = jnp.zeros((s.n_free + 1, s.n_free + 1), Ke.dtype)
+    K = K.at[idx[:, :, None], idx[:, None, :]].add(Ke)
+    return K[: s.n_free, : s.n_free]
+
+
+# ----------------------------------------------------------------------------- energies
+
+
+def free_energy_total(model: Model, q, E, Cv) -> jax.Array:
+    """Total free energy sum_g dV psi (J), electrostatic part included."""
+    F = deformation_gradients(model, q)
+    psi = jax.vmap(jax.vmap(free_energy, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
+    return jnp.sum(model.dV * psi)
+
+
+def kinetic_energy(model: Model, v) -> jax.Array:
+    """1/2 v^T M v (J)."""
+    return 0.5 * v @ mass_apply(model, v)
+
+
+def gent_margins(model: Model, q, Cv) -> jax.Array:
+    """(n_el, n_gp) smallest Gent margin H at each Gauss point (<= 0: limit reached)."""
+    F = deformation_gradients(model, q)
+    return jax.vmap(jax.vmap(min_gent_margin, in_axes=(0, 0, None)), in_axes=(0, 0, None))(F, Cv, model.material)

@@ -1,0 +1,604 @@
+r"""Independent reduced (homogeneous, incompressible) reference models.
+
+These models verify the 3-D finite-element simulator. They are derived here by
+hand from the free energy of NOTES.md and do **not** use ``dejax.material``:
+every stress and rate below is written out explicitly, so a mistake in the
+simulator's energy, autodiff or flow-rule update cannot cancel against the same
+mistake here. SI units throughout: m, s, Pa, Pa s, V, F/m.
+
+Free energy per reference volume (NOTES.md, Eqs. 18-20), with exact
+incompressibility (J = 1, so the K terms drop and Je = 1 because det Cv = 1)::
+
+    psi = -mu_inf Jm_inf/2 ln H_inf - sum_s mu_s Jm_s/2 ln H_s - eps/2 E.C^-1 E
+    H_inf = 1 - (I1 - 3)/Jm_inf,  I1 = tr C
+    H_s   = 1 - (I1e_s - 3)/Jm_s, I1e_s = tr(C Cv_s^-1)
+
+so d psi / d I1 = mu_inf/(2 H_inf) and d psi / d I1e_s = mu_s/(2 H_s).
+
+Viscous flow rule (NOTES.md, Eq. 37 cleaned up), with Je = 1::
+
+    dCv_s/dt = (2 mu_s/eta_s)/H_s (C - tr(C Cv_s^-1) Cv_s/3)
+
+For coaxial diagonal C = diag(l_i^2), Cv = diag(c_i) this is
+``dc_i/dt = A (l_i^2 - I1e c_i/3)``, which keeps c_1 c_2 c_3 = 1.
+
+**Small-strain relaxation time.** Linearising about C = Cv = I (C = I + 2e,
+Cv = I + 2 e_v) gives d e_v/dt = (2 mu_s/eta_s) dev(e - e_v), while the unit's
+stress is 2 mu_s dev(e - e_v). The unit therefore relaxes with
+
+    tau_s = eta_s / (2 mu_s)
+
+i.e. half of the "tau = eta/mu" quoted in NOTES.md (that value belongs to a
+Maxwell dashpot sigma = 2 eta de_v/dt; this flow rule is sigma = eta de_v/dt).
+For the paper's block (mu_1 = 67 kPa, eta_1 = 3000 Pa s) tau_1 = 22.4 ms, not
+45 ms. ``relaxation_time(mu, eta)`` returns this value.
+
+**Verdict on NOTES.md's block equations** ("Homogeneous block reference"): they
+are correct. Derivation: F = diag(lam, lam, lam^-2), Cv = diag(xi^2, xi^2,
+xi^-4), E = phi/L along z, so I1 = 2 lam^2 + lam^-4, I1e = 2 lam^2 xi^-2 +
+lam^-4 xi^4, E.C^-1 E = lam^4 E^2. The traction-free block at fixed voltage is
+stationary in lam::
+
+    d psi/d lam = 2 mu_inf (lam - lam^-5)/H_inf
+                + sum_s 2 mu_s (lam xi_s^-2 - lam^-5 xi_s^4)/H_s - 2 eps E^2 lam^3 = 0
+
+and dividing by 2 lam^3 gives NOTES.md's equilibrium (for one unit, after
+dividing by mu_inf). The xx-component of the flow rule,
+2 xi dxi/dt = A (lam^2 - I1e xi^2/3) = A (lam^2 - lam^-4 xi^6)/3, gives
+dxi/dt = mu_s/(3 eta_s H_s) (lam^2 xi^-1 - lam^-4 xi^5), NOTES.md's evolution
+(the zz-component gives the same equation). The printed Eq. (63) of the paper
+is wrong as NOTES.md says (rate of xi, not lambda_x; limit Jm_1).
+
+All public functions accept numpy (or python) inputs and return numpy arrays.
+Time-dependent loadings ``phi_fn`` / ``lam_fn`` are evaluated inside the
+diffrax vector field, so they must be JAX-traceable functions of a scalar
+time (e.g. written with ``jnp``). Pass them as ``jax.tree_util.Partial`` with
+array arguments (see :func:`eq41`) to reuse one compilation for many loadings.
+"""
+from __future__ import annotations
+
+import math
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import optimize
+
+import dejax  # noqa: F401  (enables float64)
+
+__all__ = [
+    "gent_equibiaxial_voltage",
+    "gent_equibiaxial_stretch",
+    "gent_limit_stretch",
+    "pullin_voltage",
+    "relaxation_time",
+    "eq41_voltage",
+    "eq41",
+    "homogeneous_block_response",
+    "homogeneous_uniaxial_response",
+    "ReferenceSolveError",
+]
+
+
+class ReferenceSolveError(ValueError):
+    """The reduced model has no admissible state (pull-in, Gent limit) or its solver failed."""
+
+
+# ---------------------------------------------------------------------------
+# 1. Closed-form quasi-static equal-biaxial Gent equilibrium (no viscosity)
+# ---------------------------------------------------------------------------
+
+
+def _eb_ratio(lam, Jm):
+    """f(lam) = (lam^-2 - lam^-8)/H_inf, H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm."""
+    lam = np.asarray(lam, dtype=float)
+    H = 1.0 - (2.0 * lam**2 + lam**-4 - 3.0) / Jm
+    return (lam**-2 - lam**-8) / H, H
+
+
+def _eb_ratio_slope_num(lam, Jm):
+    """Numerator of d f/d lam: N' H - N H' (same sign as f' where H > 0)."""
+    N = lam**-2 - lam**-8
+    dN = -2.0 * lam**-3 + 8.0 * lam**-9
+    H = 1.0 - (2.0 * lam**2 + lam**-4 - 3.0) / Jm
+    dH = -(4.0 * lam - 4.0 * lam**-5) / Jm
+    return dN * H - N * dH
+
+
+def gent_limit_stretch(Jm):
+    """Equal-biaxial stretch lam > 1 at which H = 1 - (2 lam^2 + lam^-4 - 3)/Jm = 0."""
+    Jm = float(Jm)
+    g = lambda l: 2.0 * l * l + l**-4 - 3.0 - Jm
+    hi = math.sqrt((Jm + 3.0) / 2.0) + 1.0  # 2 hi^2 - 3 > Jm
+    return optimize.brentq(g, 1.0 + 1e-15, hi, xtol=1e-15, rtol=4e-16, maxiter=500)
+
+
+def gent_equibiaxial_voltage(lam, L, mu_inf, Jm_inf, eps):
+    r"""Voltage (V) holding a hyperelastic Gent membrane at equal-biaxial stretch ``lam``.
+
+    Quasi-static, incompressible, equal-biaxial (lam, lam, lam^-2), no viscous unit,
+    nominal field E = phi/L through the thickness L (m)::
+
+        (lam^-2 - lam^-8)/H_inf = (eps/mu_inf) (phi/L)^2
+        H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
+
+    i.e. phi = L sqrt(mu_inf/eps (lam^-2 - lam^-8)/H_inf), for 1 <= lam < the Gent
+    limit. mu_inf in Pa, eps in F/m. Vectorised over ``lam``; raises ValueError for
+    lam < 1 or at/past the Gent limit.
+    """
+    lam = np.asarray(lam, dtype=float)
+    if np.any(lam < 1.0):
+        raise ValueError(f"gent_equibiaxial_voltage: lam must be >= 1 (got min {lam.min()})")
+    f, H = _eb_ratio(lam, float(Jm_inf))
+    if np.any(H <= 0.0):
+        raise ValueError(
+            f"gent_equibiaxial_voltage: lam = {lam.max()} is at or past the Gent limit "
+            f"{gent_limit_stretch(Jm_inf)} (Jm_inf = {Jm_inf})"
+        )
+    return L * np.sqrt(mu_inf / eps * f)
+
+
+def pullin_voltage(L, mu_inf, Jm_inf, eps):
+    r"""Pull-in (first local maximum) of phi(lam) on the equal-biaxial Gent curve.
+
+    Returns ``(phi_max, lam_at_max)``: lam_at_max is the first root lam > 1 of
+    d/dlam [(lam^-2 - lam^-8)/H_inf] = 0 (found by scanning and a bracketed solve),
+    phi_max = gent_equibiaxial_voltage(lam_at_max). Neo-Hookean limit (Jm -> inf):
+    lam = 2^(1/3), phi_max = L sqrt(mu/eps) sqrt(3/4 2^(-2/3)) ~ 0.6874 L sqrt(mu/eps).
+
+    For stiff enough Gent limits (Jm_inf below ~ 10) phi(lam) increases monotonically up
+    to the Gent limit and there is no pull-in: returns ``(inf, nan)``.
+    """
+    Jm = float(Jm_inf)
+    lam_lim = gent_limit_stretch(Jm)
+    grid = 1.0 + (lam_lim - 1.0) * np.linspace(0.0, 1.0, 4001)[1:-1] ** 1.5
+    s = _eb_ratio_slope_num(grid, Jm)
+    neg = np.nonzero(s <= 0.0)[0]
+    if neg.size == 0:
+        return math.inf, math.nan
+    i = int(neg[0])
+    lo = grid[i - 1] if i > 0 else 1.0 + 1e-12
+    lam_max = optimize.brentq(lambda l: _eb_ratio_slope_num(l, Jm), lo, grid[i], xtol=1e-15, rtol=4e-16, maxiter=500)
+    return float(gent_equibiaxial_voltage(lam_max, L, mu_inf, Jm, eps)), float(lam_max)
+
+
+def gent_equibiaxial_stretch(phi, L, mu_inf, Jm_inf, eps):
+    r"""Inverse of :func:`gent_equibiaxial_voltage` on the stable (first) branch.
+
+    Solves (lam^-2 - lam^-8)/H_inf = (eps/mu_inf)(phi/L)^2 for lam in [1, lam_pullin]
+    (or [1, Gent limit) when there is no pull-in) with a bracketed root solver
+    (brentq, |d lam| ~ 1e-15). Vectorised over ``phi`` (V). Raises ValueError naming
+    the voltage and the pull-in voltage if |phi| exceeds the pull-in voltage.
+    """
+    phi = np.asarray(phi, dtype=float)
+    phi_max, lam_max = pullin_voltage(L, mu_inf, Jm_inf, eps)
+    hi = lam_max if np.isfinite(phi_max) else gent_limit_stretch(Jm_inf) * (1.0 - 1e-15)
+    bad = np.abs(phi) > phi_max
+    if np.any(bad):
+        raise ValueError(
+            f"gent_equibiaxial_stretch: voltage phi = {float(np.abs(phi)[bad].max()):.10g} V exceeds the "
+            f"pull-in (maximum) voltage {phi_max:.10g} V (at lam = {lam_max:.8f}); no equilibrium on the "
+            "stable branch"
+        )
+    target = eps / mu_inf * (phi / L) ** 2
+    out = np.empty(phi.shape)
+    for k, tk in np.ndenumerate(target):
+        if tk == 0.0:
+            out[k] = 1.0
+            continue
+        g = lambda l: float(_eb_ratio(l, float(Jm_inf))[0]) - tk
+        if g(hi) <= 0.0:  # at the pull-in voltage itself (to round-off)
+            out[k] = hi
+        else:
+            out[k] = optimize.brentq(g, 1.0, hi, xtol=1e-15, rtol=4e-16, maxiter=500)
+    return out if out.ndim else float(out)
+
+
+def relaxation_time(mu, eta):
+    """Small-strain relaxation time of one viscous unit under the NOTES.md flow rule: eta/(2 mu) (s)."""
+    return np.asarray(eta, dtype=float) / (2.0 * np.asarray(mu, dtype=float))
+
+
+# ---------------------------------------------------------------------------
+# Loading history of the block (paper Eq. 41)
+# ---------------------------------------------------------------------------
+
+
+def eq41_voltage(t, phi_m):
+    """Ramp-and-hold voltage (V) of Eq. (41): phi_m/2 (1 + sin(pi t - pi/2)) for t <= 1 s, then phi_m.
+
+    jnp-compatible (and numpy-compatible via jnp). C^1 at t = 1 s.
+    """
+    t = jnp.asarray(t)
+    ramp = 0.5 * phi_m * (1.0 + jnp.sin(jnp.pi * jnp.minimum(t, 1.0) - 0.5 * jnp.pi))
+    return jnp.where(t <= 1.0, ramp, phi_m * jnp.ones_like(ramp))
+
+
+def eq41(phi_m):
+    """``t -> eq41_voltage(t, phi_m)`` as a pytree Partial (one compilation for every phi_m)."""
+    return jax.tree_util.Partial(eq41_voltage, phi_m=jnp.asarray(phi_m, dtype=float))
+
+
+# ---------------------------------------------------------------------------
+# Generic machinery: scalar Newton with implicit-function derivatives, and an
+# index-1 DAE integrated as an ODE for the differential states x plus a
+# carried warm-start guess z for the algebraic unknown.
+# ---------------------------------------------------------------------------
+
+
+def _newton_primal(resid, z0, x, t, args):
+    g = lambda z: resid(z, x, t, args)
+    dg = jax.grad(g)
+
+    def body(c):
+        z, _, k = c
+        step = g(z) / dg(z)
+        step = jnp.clip(step, -0.2 * jnp.abs(z), 0.2 * jnp.abs(z))  # step limiter
+        return z - step, jnp.abs(step), k + 1
+
+    def cond(c):
+        z, step, k = c
+        return (step > 1e-14 * jnp.abs(z)) & (k < 80)  # NaN step: stops
+
+    z, step, _ = jax.lax.while_loop(cond, body, (z0, jnp.asarray(jnp.inf, z0.dtype), 0))
+    ok = jnp.isfinite(z) & (step <= 1e-10 * jnp.abs(z)) & jnp.isfinite(g(z))
+    return jnp.where(ok, z, jnp.nan)
+
+
+def _newton_impl(resid, static, z0, x, t, dyn):
+    return _newton_primal(resid, z0, x, t, eqx.combine(dyn, static))
+
+
+_newton_impl = jax.custom_jvp(_newton_impl, nondiff_argnums=(0, 1))
+
+
+@_newton_impl.defjvp
+def _newton_jvp(resid, static, primals, tangents):
+    z0, x, t, dyn = primals
+    _, dx, dt, ddyn = tangents
+    z = _newton_impl(resid, static, z0, x, t, dyn)
+    r = lambda z_, x_, t_, d_: resid(z_, x_, t_, eqx.combine(d_, static))
+    rz = jax.grad(r)(z, x, t, dyn)
+    _, rdot = jax.jvp(lambda x_, t_, d_: r(z, x_, t_, d_), (x, t, dyn), (dx, dt, ddyn))
+    return z, -rdot / rz
+
+
+def _newton(resid, z0, x, t, args):
+    """Root z of resid(z, x, t, args) = 0 from z0 (NaN if Newton fails or the root is inadmissible).
+
+    Derivatives with respect to x, t and the array leaves of args follow from the implicit
+    function theorem (custom JVP), so forward-mode Jacobians (implicit ODE solvers) are exact.
+    """
+    dyn, static = eqx.partition(args, eqx.is_array)
+    t = jnp.asarray(t, dtype=float)
+    return _newton_impl(resid, static, jnp.asarray(z0, dtype=float), x, t, dyn)
+
+
+def _dae_field(resid, rate):
+    """Vector field for y = (z_guess, x): z solves resid = 0 (index-1 DAE), x' = rate(z, x, t, args).
+
+    The carried z_guess follows dz/dt = -(d resid/dt at fixed z)/(d resid/dz), i.e. the
+    differentiated constraint, but it is only a warm start: the z used in the rates is
+    always re-solved by Newton, so no drift off the constraint can accumulate.
+    """
+
+    def field(t, y, args):
+        zg, x = y
+        z = _newton(resid, zg, x, t, args)
+        xdot = rate(z, x, t, args)
+        rz = jax.grad(resid)(z, x, t, args)
+        _, rdot = jax.jvp(lambda x_, t_: resid(z, x_, t_, args), (x, t), (xdot, jnp.ones_like(t)))
+        return -rdot / rz, xdot
+
+    return field
+
+
+def _default_solver():
+    return diffrax.Kvaerno5()
+
+
+def _diffeqsolve(field, y0, t0, ts, args, solver, rtol, atol, max_steps):
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(field),
+        solver,
+        t0=t0,
+        t1=ts[-1],
+        dt0=None,
+        y0=y0,
+        args=args,
+        saveat=diffrax.SaveAt(ts=ts),
+        stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
+        max_steps=max_steps,
+        throw=False,
+    )
+    return sol.ys, sol.result == diffrax.RESULTS.successful, sol.stats["num_steps"]
+
+
+def _check_run(ok, nsteps, max_steps, what):
+    if not bool(ok):
+        raise ReferenceSolveError(
+            f"{what}: time integration failed after {int(nsteps)} steps (max_steps = {max_steps}); the "
+            "state probably left the admissible set (no equilibrium past pull-in, or the Gent limit "
+            "1 - (I1 - 3)/Jm <= 0 reached), or max_steps is too small"
+        )
+
+
+def _times(t, t0):
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    if t.ndim != 1 or np.any(np.diff(t) < 0):
+        raise ValueError("t must be a 1-D non-decreasing array of times (s)")
+    if t[0] < t0:
+        raise ValueError(f"requested time {t[0]} precedes the start time t0 = {t0}")
+    return t
+
+
+def _units(mu, Jm, eta):
+    mu = np.atleast_1d(np.asarray(mu, dtype=float)).reshape(-1)
+    Jm = np.atleast_1d(np.asarray(Jm, dtype=float)).reshape(-1)
+    eta = np.atleast_1d(np.asarray(eta, dtype=float)).reshape(-1)
+    if not (mu.shape == Jm.shape == eta.shape):
+        raise ValueError(f"mu, Jm, eta need one entry per viscous unit: got {mu.shape}, {Jm.shape}, {eta.shape}")
+    if np.any(mu <= 0) or np.any(Jm <= 0) or np.any(eta <= 0):
+        raise ValueError("mu, Jm, eta of every viscous unit must be > 0")
+    return mu, Jm, eta
+
+
+def _nan_unless(ok, v):
+    return jnp.where(ok, v, jnp.nan)
+
+
+# ---------------------------------------------------------------------------
+# 2. Homogeneous equal-biaxial block with N viscous units
+# ---------------------------------------------------------------------------
+
+
+def _block_resid(lam, xi, t, args):
+    """[sum of elastic terms - eps (phi/L)^2] / mu_inf of the equal-biaxial block (NaN if inadmissible)."""
+    p, phi_fn = args
+    phi = phi_fn(t)
+    Hinf = 1.0 - (2.0 * lam**2 + lam**-4 - 3.0) / p["Jm_inf"]
+    Hs = 1.0 - (2.0 * lam**2 * xi**-2 + lam**-4 * xi**4 - 3.0) / p["Jm"]
+    r = (lam**-2 - lam**-8) / Hinf
+    r = r + jnp.sum(p["mu"] / p["mu_inf"] * (lam**-2 * xi**-2 - lam**-8 * xi**4) / Hs)
+    r = r - p["eps"] / p["mu_inf"] * (phi / p["L"]) ** 2
+    ok = (lam > 0) & (Hinf > 0) & jnp.all(Hs > 0)
+    return _nan_unless(ok, r)
+
+
+def _block_rate(lam, xi, t, args):
+    """dxi_s/dt = mu_s/(3 eta_s H_s) (lam^2 xi_s^-1 - lam^-4 xi_s^5)."""
+    p, _ = args
+    Hs = 1.0 - (2.0 * lam**2 * xi**-2 + lam**-4 * xi**4 - 3.0) / p["Jm"]
+    return p["mu"] / (3.0 * p["eta"] * Hs) * (lam**2 / xi - lam**-4 * xi**5)
+
+
+_block_field = _dae_field(_block_resid, _block_rate)
+
+
+@eqx.filter_jit
+def _block_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
+    n = args[0]["mu"].shape[0]
+    xi0 = jnp.ones((n,))
+    lam_start = _newton(_block_resid, jnp.asarray(1.0), xi0, t0, args)
+    if integrate:
+        (zg, xis), ok, nsteps = _diffeqsolve(_block_field, (lam_start, xi0), t0, ts, args, solver, rtol, atol, max_steps)
+    else:
+        zg, xis = jnp.full(ts.shape, lam_start), jnp.ones(ts.shape + (n,))
+        ok, nsteps = jnp.isfinite(lam_start), jnp.asarray(0)
+    lam = jax.vmap(lambda z, x, tt: _newton(_block_resid, z, x, tt, args))(zg, xis, ts)
+    return lam, xis, ok, nsteps
+
+
+def homogeneous_block_response(
+    t, phi_fn, L, mu_inf, Jm_inf, eps, mu, Jm, eta, rtol=1e-10, atol=1e-12, *, t0=0.0, solver=None, max_steps=100_000, return_xi=False
+):
+    r"""Equal-biaxial stretch lam(t) of the incompressible viscoelastic Gent block (N >= 0 units).
+
+    Kinematics lam_x = lam_y = lam, lam_z = lam^-2; Cv_s = diag(xi_s^2, xi_s^2, xi_s^-4);
+    nominal field E = phi(t)/L along z; inertia neglected. Derived from psi (module
+    docstring)::
+
+        equilibrium:  mu_inf (lam^-2 - lam^-8)/H_inf
+                      + sum_s mu_s (lam^-2 xi_s^-2 - lam^-8 xi_s^4)/H_s = eps (phi/L)^2
+        evolution:    dxi_s/dt = mu_s/(3 eta_s H_s) (lam^2 xi_s^-1 - lam^-4 xi_s^5)
+        H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
+        H_s   = 1 - (2 lam^2 xi_s^-2 + lam^-4 xi_s^4 - 3)/Jm_s
+
+    with xi_s(t0) = 1 (Cv = I at rest). This is an index-1 DAE. It is integrated as an
+    ODE in the viscous stretches xi with the algebraic equilibrium solved for lam by
+    Newton at every right-hand-side evaluation (implicit-function-theorem derivatives,
+    so implicit solvers get exact Jacobians). The Newton iteration is warm-started from
+    an extra carried state that follows the differentiated constraint
+    dlam/dt = -(g_xi . xi' + g_t)/g_lam; unlike a pure index reduction (ODE in (lam, xi)),
+    the constraint is re-solved exactly at every evaluation, so there is no drift, and
+    the warm start keeps Newton at 2-3 iterations. The default solver is diffrax's
+    Kvaerno5 (L-stable ESDIRK) so that arbitrarily small eta (stiff) work too.
+
+    Args:
+      t: output times (s), non-decreasing, >= t0.
+      phi_fn: JAX-traceable voltage history phi(t) (V), e.g. ``eq41(phi_m)``.
+      L: thickness (m); mu_inf (Pa), Jm_inf (-), eps (F/m): equilibrium branch.
+      mu, Jm, eta: per-unit shear modulus (Pa), Gent limit (-), viscosity (Pa s);
+        scalars or length-N sequences (N = 0 allowed: pass ``()``).
+      rtol, atol: tolerances of the adaptive step-size controller.
+      return_xi: also return xi(t) (len(t), N).
+    Returns:
+      lam(t) as a numpy array (and xi(t) if requested).
+    Raises:
+      ReferenceSolveError (a ValueError) when no admissible equilibrium exists along the
+      history (pull-in, Gent limit) or the integration fails.
+    """
+    mu, Jm, eta = _units(mu, Jm, eta)
+    ts = _times(t, t0)
+    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mu, Jm=Jm, eta=eta).items()}
+    args = (p, phi_fn)
+    integrate = bool(mu.size > 0 and ts[-1] > t0)
+    lam, xis, ok, nsteps = _block_solve(jnp.asarray(t0, float), jnp.asarray(ts), args, solver or _default_solver(), rtol, atol, max_steps, integrate)
+    _check_run(ok, nsteps, max_steps, "homogeneous_block_response")
+    lam = np.asarray(lam)
+    if not np.all(np.isfinite(lam)):
+        k = int(np.argmin(np.isfinite(lam)))
+        raise ReferenceSolveError(
+            f"homogeneous_block_response: no admissible equilibrium at t = {ts[k]} s (phi = "
+            f"{float(phi_fn(ts[k]))} V): pull-in or Gent limit"
+        )
+    return (lam, np.asarray(xis)) if return_xi else lam
+
+
+# ---------------------------------------------------------------------------
+# 3. Stretch-controlled uniaxial tension
+# ---------------------------------------------------------------------------
+#
+# Mechanical only: F = diag(lam, lam^-1/2, lam^-1/2), Cv_s = diag(a^2, a^-1, a^-1).
+#   I1 = lam^2 + 2/lam, I1e = lam^2 a^-2 + 2 a/lam.
+#   Lateral faces traction free: sigma_2 = sigma_3 = 0 fixes the pressure, and
+#   P11 = (sigma_1 - sigma_2)/lam = d W/d lam along the path, W(lam) = psi(uniaxial):
+#     P11 = mu_inf (lam - lam^-2)/H_inf + sum_s mu_s (lam a_s^-2 - a_s lam^-2)/H_s
+#   Flow rule, 11-component: 2 a da/dt = A (lam^2 - I1e a^2/3) = (2A/3)(lam^2 - a^3/lam):
+#     da_s/dt = 2 mu_s/(3 eta_s H_s) (lam^2 a_s^-1 - lam^-1 a_s^2)
+#   (the 22-component gives the same equation). Linearised: da/dt = (2 mu/eta)(lam - a).
+
+
+def _uni_stress(lam, a, p):
+    Hinf = 1.0 - (lam**2 + 2.0 / lam - 3.0) / p["Jm_inf"]
+    Hs = 1.0 - (lam**2 / a**2 + 2.0 * a / lam - 3.0) / p["Jm"]
+    P = p["mu_inf"] * (lam - lam**-2) / Hinf + jnp.sum(p["mu"] * (lam / a**2 - a / lam**2) / Hs, axis=-1)
+    ok = (Hinf > 0) & jnp.all(Hs > 0, axis=-1)
+    return _nan_unless(ok, P)
+
+
+def _uni_field(t, a, args):
+    p, lam_fn = args
+    lam = lam_fn(t)
+    Hs = 1.0 - (lam**2 / a**2 + 2.0 * a / lam - 3.0) / p["Jm"]
+    Hs = _nan_unless(Hs > 0, Hs)
+    return 2.0 * p["mu"] / (3.0 * p["eta"] * Hs) * (lam**2 / a - a**2 / lam)
+
+
+# With a voltage across direction 3 (nominal field E = phi/thickness):
+# F = diag(lam, l2, l3), l3 = 1/(lam l2); Cv_s = diag(c1, c2, c3), c3 = 1/(c1 c2), carried as
+# g = (ln c1, ln c2). Electric term -eps/2 E^2 C^-1_33 = -eps/2 E^2 lam^2 l2^2. Writing
+#   s_i = mu_inf l_i^2/H_inf + sum_s mu_s l_i^2/(c_si H_s)   (deviatoric-free "stress" parts)
+# the lateral equilibrium d W/d l2 = 0 (faces 2 and 3 traction free) reads
+#   s_2 - s_3 + eps E^2 / l3^2 = 0,       i.e.  sigma_2 = sigma_3 (= 0) incl. the Maxwell stress,
+# and the nominal stress P11 = d W/d lam at fixed l2 is
+#   P11 = (s_1 - s_3 + eps E^2 / l3^2)/lam.
+# Flow rule: d ln c_i/dt = A (l_i^2/c_i - I1e/3), A = 2 mu_s/(eta_s H_s).
+
+
+def _uv_parts(lam, l2, g, p):
+    l = jnp.stack([lam, l2, 1.0 / (lam * l2)])
+    lg = jnp.concatenate([g, -jnp.sum(g, axis=-1, keepdims=True)], axis=-1)  # (N, 3) ln c
+    Hinf = 1.0 - (jnp.sum(l**2) - 3.0) / p["Jm_inf"]
+    r = l**2 * jnp.exp(-lg)  # (N, 3): l_i^2 / c_i
+    I1e = jnp.sum(r, axis=-1)
+    Hs = 1.0 - (I1e - 3.0) / p["Jm"]
+    s = p["mu_inf"] * l**2 / Hinf + jnp.sum((p["mu"] / Hs)[:, None] * r, axis=0)
+    ok = (l2 > 0) & (Hinf > 0) & jnp.all(Hs > 0)
+    return l, s, r, I1e, Hs, ok
+
+
+def _uv_resid(l2, g, t, args):
+    p, lam_fn, phi_fn = args
+    lam = lam_fn(t)
+    E = phi_fn(t) / p["thickness"]
+    l, s, _, _, _, ok = _uv_parts(lam, l2, g, p)
+    return _nan_unless(ok, (s[1] - s[2] + p["eps"] * E**2 / l[2] ** 2) / p["mu_inf"])
+
+
+def _uv_rate(l2, g, t, args):
+    p, lam_fn, _ = args
+    _, _, r, I1e, Hs, _ = _uv_parts(lam_fn(t), l2, g, p)
+    A = 2.0 * p["mu"] / (p["eta"] * Hs)
+    return A[:, None] * (r[:, :2] - I1e[:, None] / 3.0)
+
+
+_uv_field = _dae_field(_uv_resid, _uv_rate)
+
+
+def _uv_stress(l2, g, t, args):
+    p, lam_fn, phi_fn = args
+    lam = lam_fn(t)
+    E = phi_fn(t) / p["thickness"]
+    l, s, _, _, _, ok = _uv_parts(lam, l2, g, p)
+    return _nan_unless(ok, (s[0] - s[2] + p["eps"] * E**2 / l[2] ** 2) / lam)
+
+
+def homogeneous_uniaxial_response(
+    t, lam_fn, mu_inf, Jm_inf, mu, Jm, eta, eps=0.0, phi_fn=None, thickness=None, *,
+    rtol=1e-10, atol=1e-12, t0=0.0, solver=None, max_steps=100_000, return_state=False,
+):
+    r"""Nominal stress P11(t) (Pa) of stretch-controlled uniaxial tension of an incompressible strip.
+
+    Gent equilibrium branch + N viscous Gent units, Cv_s = I at t0 (a step in lam at t0
+    is an instantaneous, elastic response). Lateral faces are traction free (the pressure
+    is eliminated).
+
+    Mechanical only (``phi_fn`` None): lam1 = lam(t), lam2 = lam3 = lam^-1/2,
+    Cv_s = diag(a_s^2, a_s^-1, a_s^-1)::
+
+        P11 = mu_inf (lam - lam^-2)/H_inf + sum_s mu_s (lam a_s^-2 - a_s lam^-2)/H_s
+        da_s/dt = 2 mu_s/(3 eta_s H_s) (lam^2 a_s^-1 - lam^-1 a_s^2)
+        H_inf = 1 - (lam^2 + 2/lam - 3)/Jm_inf,  H_s = 1 - (lam^2 a_s^-2 + 2 a_s/lam - 3)/Jm_s
+
+    Linearised, da/dt = (2 mu_s/eta_s)(lam - a): relaxation time eta_s/(2 mu_s).
+
+    With a voltage phi(t) across direction 3 (reference thickness ``thickness``, nominal
+    field E = phi/thickness) the symmetry lam2 = lam3 is lost and is *handled*: lam3 =
+    1/(lam lam2), Cv_s = diag(c1, c2, 1/(c1 c2)) and lam2 solves the lateral equilibrium
+    (faces 2 and 3 traction free, Maxwell stress included)::
+
+        s_2 - s_3 + eps E^2 lam3^-2 = 0,   P11 = (s_1 - s_3 + eps E^2 lam3^-2)/lam
+        s_i = mu_inf l_i^2/H_inf + sum_s mu_s l_i^2/(c_si H_s)
+        d ln c_si/dt = 2 mu_s/(eta_s H_s) (l_i^2/c_si - I1e_s/3)
+
+    (an index-1 DAE, integrated like :func:`homogeneous_block_response`).
+
+    Args:
+      t: output times (s); lam_fn: JAX-traceable stretch history lam(t) (-).
+      mu_inf (Pa), Jm_inf (-); mu (Pa), Jm (-), eta (Pa s): per viscous unit (N >= 0).
+      eps (F/m), phi_fn (JAX-traceable, V), thickness (m): optional electrical loading.
+      return_state: also return the internal state (a_s, or (lam2, ln c1, ln c2)).
+    Returns:
+      P11(t) as a numpy array (Pa).
+    """
+    mu, Jm, eta = _units(mu, Jm, eta)
+    ts = _times(t, t0)
+    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, mu=mu, Jm=Jm, eta=eta).items()}
+    tsj = jnp.asarray(ts)
+    what = "homogeneous_uniaxial_response"
+    if phi_fn is None:
+        args = (p, lam_fn)
+        a0 = jnp.ones(mu.shape)
+        if mu.size == 0 or ts[-1] == t0:
+            a = jnp.ones((ts.size, mu.size))
+        else:
+            a = _run(_uni_field, a0, t0, ts, args, solver, rtol, atol, max_steps, what)
+        lam = jax.vmap(lam_fn)(tsj)
+        P = np.asarray(jax.vmap(lambda l_, a_: _uni_stress(l_, a_, p))(lam, a))
+        state = np.asarray(a)
+    else:
+        if thickness is None or not thickness > 0:
+            raise ValueError(f"{what}: a voltage needs the reference thickness (got thickness = {thickness})")
+        p["thickness"] = jnp.asarray(thickness, float)
+        args = (p, lam_fn, phi_fn)
+        g0 = jnp.zeros((mu.size, 2))
+        l2_guess = jnp.asarray(lam_fn(jnp.asarray(t0, float)), float) ** -0.5
+        l2_start = _newton(_uv_resid, l2_guess, g0, jnp.asarray(t0, float), args)
+        if not np.isfinite(float(l2_start)):
+            raise ReferenceSolveError(f"{what}: no lateral equilibrium at t0 = {t0}")
+        if mu.size == 0 or ts[-1] == t0:
+            # purely elastic: solve each time from the symmetric guess lam^-1/2
+            zg = jax.vmap(lambda tt: jnp.asarray(lam_fn(tt), float) ** -0.5)(tsj)
+            gs = jnp.zeros((ts.size, mu.size, 2))
+        else:
+            zg, gs = _run(_uv_field, (l2_start, g0), t0, ts, args, solver, rtol, atol, max_steps, what)
+        l2 = jax.vmap(lambda z, g, tt: _newton(_uv_resid, z, g, tt, args))(zg, gs, tsj)
+        P = np.asarray(jax.vmap(lambda z, g, tt: _uv_stress(z, g, tt, args))(l2, gs, tsj))
+        state = (np.asarray(l2), np.asarray(gs))
+    if not np.all(np.isfinite(P)):
+        k = int(np.argmin(np.isfinite(P)))
+        raise ReferenceSolveError(f"{what}: inadmissible state at t = {ts[k]} s (Gent limit or no lateral equilibrium)")
+    return (P, state) if return_state else P
