@@ -377,24 +377,38 @@ def simulate(
     newton: NewtonOptions = NewtonOptions(),
     solver=None,
     state0: State | None = None,
+    pad_to: int | None = None,
 ) -> Solution:
     """Integrate over the time grid ``times`` (n+1,) in one jitted ``lax.scan``.
 
     Pure and differentiable (jax.jvp / jax.grad / jax.vmap) in ``model`` and
     ``loading`` arrays. ``output_fn(model, loading, state) -> dict`` is recorded at
-    every grid time. The returned Solution carries the status; call ``.check()``
-    to raise on failure.
+    every grid time; it is a static argument (use a hashable callable object to share
+    compiled code between calls). ``pad_to`` (>= n) pads the scan with skipped steps so
+    that runs of different lengths share one compilation. The returned Solution carries
+    the status; call ``.check()`` to raise on failure.
     """
-    return _simulate_jit(model, loading, jnp.asarray(times, dtype=float), output_fn, scheme, newton, solver, state0)
+    times = np.asarray(times, dtype=float) if not isinstance(times, jax.core.Tracer) else times
+    n = times.shape[0] - 1
+    m = n if pad_to is None else int(pad_to)
+    if m < n:
+        raise ValueError(f"pad_to = {m} is smaller than the number of steps {n}")
+    tt = jnp.concatenate([jnp.asarray(times[1:], dtype=float), jnp.full(m - n, times[-1])])
+    active = jnp.arange(m) < n
+    sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), tt, active, output_fn, scheme, newton, solver, state0)
+    if m == n:
+        return Solution(jnp.asarray(times), sol.outputs, sol.iterations, sol.status, sol.fail_step, sol.final)
+    outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)
+    return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.status, sol.fail_step, sol.final)
 
 
 @eqx.filter_jit
-def _simulate_jit(model, loading, times, output_fn, scheme, newton, solver, state0):
+def _simulate_jit(model, loading, t0, times, active, output_fn, scheme, newton, solver, state0):
     step = make_step(scheme, newton, solver)
     run = make_scan(step, output_fn)
-    s0 = initial_state(model, loading, times[0]) if state0 is None else state0
+    s0 = initial_state(model, loading, t0) if state0 is None else state0
     carry = Carry(state=s0, status=jnp.asarray(0), fail_step=jnp.asarray(-1), step_offset=jnp.asarray(0))
-    carry, (outs, its) = run(model, loading, carry, times[1:], jnp.ones(times.shape[0] - 1, bool))
+    carry, (outs, its) = run(model, loading, carry, times, active)
     out0 = output_fn(model, loading, s0)
     outputs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
     return Solution(times, outputs, its, carry.status, carry.fail_step, carry.state)

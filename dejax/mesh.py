@@ -15,6 +15,11 @@ configuration (see ``dejax.element`` for the coordinate conventions):
   The nominal field is ``E = -sum_c V_c(t) Grad phi_c``.
 * ``conn`` (n_el, 8) and ``node_sets`` (name -> node indices): static integers.
 
+Builders: ``structured_mesh`` (smooth map of a parameter box), ``block_mesh``,
+``rolled_tube_mesh`` (paper Sec. 6), ``twisted_strip_mesh`` (paper Sec. 5) and
+``mesh_from_meshio`` (any all-hexahedral mesh); ``face_nodes`` selects nodes on
+a coordinate plane.
+
 Array fields are JAX arrays and may depend on geometric parameters (h, L, r)
 under ``jax.jvp``; integer topology is static (``Static``) so that jit caches
 one compiled program per topology.

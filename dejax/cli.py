@@ -1,0 +1,214 @@
+"""Command line: ``dejax run``, ``dejax verify`` (and more verbs as they land).
+
+Exit codes: 0 success, 1 simulation failure (reported with its time), 2 bad
+arguments or an unwritable output path (nothing is written).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # exit code 2 with a clear message (argparse default is also 2)
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _positive(name):
+    def conv(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not v > 0:
+            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text}")
+        return v
+
+    return conv
+
+
+def _nonneg(name):
+    def conv(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if v < 0:
+            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {text}")
+        return v
+
+    return conv
+
+
+def _mesh_shape(text):
+    parts = text.lower().split("x")
+    try:
+        shape = tuple(int(p) for p in parts)
+    except ValueError:
+        shape = ()
+    if len(shape) != 3 or min(shape) < 1:
+        raise argparse.ArgumentTypeError(f"mesh must look like 12x20x4 (three positive integers), got {text!r}")
+    return shape
+
+
+def _rho_inf(text):
+    v = _nonneg("--rho-inf")(text)
+    if v > 1:
+        raise argparse.ArgumentTypeError(f"--rho-inf must lie in [0, 1], got {text}")
+    return v
+
+
+def _common_solver_args(p):
+    p.add_argument("--dt", type=_positive("--dt"), default=None, help="time step (s)")
+    p.add_argument("--rho-inf", type=_rho_inf, default=0.8, help="generalized-alpha spectral radius (default 0.8)")
+    p.add_argument("--damping", type=_nonneg("--damping"), default=0.0, help="structural damping c_d (1/s), C = c_d M")
+    p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5), help="Gauss points per direction")
+    p.add_argument("--newton-tol", type=_positive("--newton-tol"), default=1e-9, help="Newton tolerance (strain-like)")
+    p.add_argument("--out", required=True, help="results file (HDF5), written atomically")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="dejax", description="Differentiable hyper-viscoelastic DEA simulator")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="run a scenario and write an HDF5 results file")
+    rsub = run.add_subparsers(dest="scenario", required=True, parser_class=_Parser)
+    b = rsub.add_parser("block", help="DE block under the Eq. (41) ramp-and-hold voltage (paper Sec. 4)")
+    b.add_argument("--phi-max", type=_nonneg("--phi-max"), default=12e3, help="peak voltage phi_m (V)")
+    b.add_argument("--t-end", type=_positive("--t-end"), default=3.0, help="end time (s)")
+    b.add_argument("--t-ramp", type=_positive("--t-ramp"), default=1.0, help="ramp duration (s)")
+    b.add_argument("--L", type=_positive("--L"), default=1e-3, help="cube side (m)")
+    b.add_argument("--mesh", type=_mesh_shape, default=(1, 1, 1), help="elements, e.g. 2x2x2")
+    b.add_argument("--hyperelastic", action="store_true", help="drop the viscous unit")
+    b.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None, help="override mu_inf (Pa)")
+    b.add_argument("--eta", type=_positive("--eta"), default=None, help="override eta_1 (Pa s)")
+    _common_solver_args(b)
+
+    v = sub.add_parser("verify", help="run the verification cases against independent references")
+    v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
+    v.add_argument("--json", default=None, help="also write the table as JSON to this path")
+    return parser
+
+
+def _progress(quiet):
+    if quiet:
+        return None
+    last = [0.0]
+
+    def report(k, n, t, wall):
+        now = time.perf_counter()
+        if now - last[0] < 1.0 and k < n:
+            return
+        last[0] = now
+        rate = k / wall if wall > 0 else float("nan")
+        sys.stderr.write(f"\r  step {k}/{n}  t = {t:.4g} s  {rate:.0f} steps/s  ")
+        if k >= n:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return report
+
+
+def _run_problem(problem, t_end, dt, args, summary_outputs):
+    import numpy as np
+
+    from . import integrate as it
+    from .results import write_h5
+
+    times = it.time_grid(t_end, dt)
+    sol, _, compile_s, run_s = it.run_chunked(
+        problem.model,
+        problem.loading,
+        times,
+        problem.output_fn,
+        it.GeneralizedAlpha(args.rho_inf),
+        it.NewtonOptions(tol=args.newton_tol),
+        chunk=min(1000, len(times) - 1),
+        progress=_progress(args.quiet),
+    )
+    iters = np.asarray(sol.iterations)
+    if not sol.ok:
+        err = it.SimulationError(it.Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1)
+        print(f"dejax: error: {err} (no results file written)", file=sys.stderr)
+        return 1
+    n = len(times) - 1
+    attrs = dict(
+        status="ok",
+        dt=dt,
+        t_end=t_end,
+        rho_inf=args.rho_inf,
+        newton_tol=args.newton_tol,
+        compile_s=compile_s,
+        run_s=run_s,
+        newton_mean=float(iters.mean()),
+        newton_max=int(iters.max()),
+    )
+    write_h5(args.out, sol.time, {k: np.asarray(v) for k, v in sol.outputs.items()}, problem.params, iters, attrs=attrs)
+    finals = ", ".join(f"{k} = {float(np.asarray(sol.outputs[k])[-1]):.6g}" for k in summary_outputs)
+    print(
+        f"{problem.name}: {n} steps to t = {t_end:g} s, compile {compile_s:.1f} s, run {run_s:.2f} s "
+        f"({n / max(run_s, 1e-9):.0f} steps/s), Newton {iters.mean():.2f} mean / {iters.max()} max; "
+        f"final {finals} -> {args.out}"
+    )
+    return 0
+
+
+def _cmd_run(args):
+    from .results import OutputPathError, check_output_path
+
+    try:
+        check_output_path(args.out)
+    except OutputPathError as e:
+        print(f"dejax: error: {e}", file=sys.stderr)
+        return 2
+    if args.scenario == "block":
+        from . import scenarios
+
+        over = {}
+        if args.mu_inf is not None:
+            over["mu_inf"] = args.mu_inf
+        if args.eta is not None:
+            over["eta"] = [args.eta]
+        if args.hyperelastic:
+            over.update(mu=[], K=[], Jm=[], eta=[])
+        material = scenarios.block_material(**over)
+        problem = scenarios.block(
+            phi_max=args.phi_max,
+            L=args.L,
+            shape=args.mesh,
+            material=material,
+            t_ramp=args.t_ramp,
+            gauss_order=args.gauss or 2,
+            damping=args.damping,
+        )
+        return _run_problem(problem, args.t_end, args.dt or 1e-3, args, ["lateral_stretch"])
+    raise AssertionError(args.scenario)
+
+
+def _cmd_verify(args):
+    from . import verify
+
+    ok = verify.main(quick=args.quick, json_path=args.json)
+    return 0 if ok else 1
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "run":
+            return _cmd_run(args)
+        if args.command == "verify":
+            return _cmd_verify(args)
+    except ValueError as e:  # bad parameter values found while building the problem
+        print(f"dejax: error: {e}", file=sys.stderr)
+        return 2
+    parser.error(f"unknown command {args.command!r}")
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
