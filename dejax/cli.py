@@ -181,7 +181,7 @@ def _cmd_run(args):
             shape=args.mesh,
             material=material,
             t_ramp=args.t_ramp,
-            gauss_order=args.gauss or 2,
+            gauss_order=args.gauss or 3,
             damping=args.damping,
         )
         return _run_problem(problem, args.t_end, args.dt or 1e-3, args, ["lateral_stretch"])

@@ -1,4 +1,8 @@
-"""Linear constraints by elimination: q = q_p(t) + T z with T a selection of free coordinates.
+"""Linear constraints by elimination: q = q_p(t) + T z.
+
+T maps each reduced unknown z_j to one coordinate (free) or to a group of
+coordinates that share one value (tied: e.g. the axial positions of a face
+that must stay planar but may translate). Every row of T has at most one 1.
 
 A constrained coordinate either keeps its reference value (fixed) or follows a
 prescribed history ``q_i(t) = q0_i + sum_k u_k(t) d_ki`` (prescribed motion,
@@ -53,6 +57,7 @@ class Constraints:
     n_dofs: int
     fixed: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
     prescribed: tuple = ()
+    ties: tuple = ()
 
     def fix(self, dofs) -> "Constraints":
         dofs = np.asarray(dofs, dtype=np.int64).reshape(-1)
@@ -66,6 +71,15 @@ class Constraints:
         direction = np.broadcast_to(np.asarray(direction, dtype=float), dofs.shape).copy()
         return dataclasses.replace(self, prescribed=self.prescribed + ((dofs, direction),))
 
+    def tie(self, dofs) -> "Constraints":
+        """Make the coordinates ``dofs`` share one value (they must have equal reference
+        values, e.g. x-positions of nodes on a face x = const: the face stays planar)."""
+        dofs = np.unique(np.asarray(dofs, dtype=np.int64).reshape(-1))
+        self._check(dofs)
+        if dofs.size < 2:
+            return self
+        return dataclasses.replace(self, ties=self.ties + (dofs,))
+
     def _check(self, dofs):
         if dofs.size and (dofs.min() < 0 or dofs.max() >= self.n_dofs):
             raise ValueError(f"constraint refers to coordinate {dofs.max()} outside 0..{self.n_dofs - 1}")
@@ -75,14 +89,33 @@ class Constraints:
         return len(self.prescribed)
 
     def split(self):
-        """(free, constrained, directions): index arrays and the (n_channels, n_constrained)
-        direction matrix with q[constrained] = q0[constrained] + u(t) @ directions."""
+        """(col, constrained, directions, representatives):
+
+        col (n_dofs,): reduced unknown of each coordinate, -1 if constrained;
+        constrained: indices with q[constrained] = q0[constrained] + u(t) @ directions;
+        directions (n_channels, n_constrained); representatives (n_reduced,): one
+        coordinate per reduced unknown (the first of its group).
+        """
         pres = [d for d, _ in self.prescribed]
         constrained = np.union1d(self.fixed, np.concatenate(pres) if pres else np.zeros(0, np.int64))
-        free = np.setdiff1d(np.arange(self.n_dofs), constrained)
+        col = np.full(self.n_dofs, -2, dtype=np.int64)
+        col[constrained] = -1
+        n = 0
+        for group in self.ties:
+            group = group[col[group] == -2]  # constrained or already-tied members keep their role
+            if group.size == 0:
+                continue
+            col[group] = n
+            n += 1
+        rest = np.nonzero(col == -2)[0]
+        col[rest] = n + np.arange(rest.size)
+        n += rest.size
+        reps = np.zeros(n, dtype=np.int64)
+        valid = np.nonzero(col >= 0)[0]
+        reps[col[valid[::-1]]] = valid[::-1]  # first member wins
         pos = {int(d): i for i, d in enumerate(constrained)}
         dirs = np.zeros((self.n_channels, constrained.size))
         for k, (dofs, direction) in enumerate(self.prescribed):
             for d, v in zip(dofs, direction):
                 dirs[k, pos[int(d)]] = v
-        return free, constrained, dirs
+        return col, constrained, dirs, reps

@@ -34,6 +34,7 @@ import numpy as np
 
 from . import model as mdl
 from .linsolve import DenseSolver
+from .material import det3
 from .model import Model
 
 
@@ -97,11 +98,28 @@ class GeneralizedAlpha:
 
 @dataclasses.dataclass(frozen=True)
 class NewtonOptions:
-    """Newton controls. Converged when max |dz_i| / scale_i <= tol, with scale_i the
-    element size for positions and 1 for gradient coordinates (a strain-like measure)."""
+    """Newton controls.
+
+    Converged when max |dz_i| / scale_i <= tol, with scale_i the element size for
+    positions and 1 for gradient coordinates (a strain-like measure).
+
+    reuse: modified Newton: keep the factorized iteration matrix over iterations and
+      steps, and refactor only when an iteration contracts the correction by less than
+      ``refactor_rate`` (or at the first use). False: full Newton (refactor every iteration).
+    predictor: starting iterate of each step: "paper" (Eq. 33, uses the acceleration),
+      "velocity" (q_n + h v_n; robust for quasi-static runs with large steps) or
+      "constant" (q_n). The converged solution does not depend on it.
+    """
 
     tol: float = 1e-9
     max_iter: int = 25
+    reuse: bool = True
+    refactor_rate: float = 0.2
+    predictor: str = "paper"
+
+    def __post_init__(self):
+        if self.predictor not in ("paper", "velocity", "constant"):
+            raise ValueError(f"predictor must be 'paper', 'velocity' or 'constant', got {self.predictor!r}")
 
 
 class Loading(eqx.Module):
@@ -132,6 +150,13 @@ class State(eqx.Module):
     Cv: jax.Array
 
 
+def _initial_state_jit(model, loading, t0):
+    return initial_state(model, loading, t0)
+
+
+_initial_state_jit = eqx.filter_jit(_initial_state_jit)
+
+
 def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0, q=None, v=None) -> State:
     """State at t0: reference (or given) coordinates and velocities, Cv = I, and the
     acceleration consistent with the equations of motion (M qdd = Q_ext - Q_int - C v)."""
@@ -143,13 +168,13 @@ def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0,
     phi = loading.phi(t0) if model.field_dirs.shape[0] else jnp.zeros(0)
     E = mdl.nominal_field(model, phi)
     f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0)
-    rhs = (mdl.gravity_force(model) - f_int - model.damping * mdl.mass_apply(model, v))[s.free]
+    rhs = mdl.reduce(model, mdl.gravity_force(model) - f_int - model.damping * mdl.mass_apply(model, v))
     Mff = mdl.assemble_dense(model, mdl.mass_elements(model)) if s.n_free <= 4000 else None
     if Mff is not None:
         qdd_f = jnp.linalg.solve(Mff, rhs)
     else:  # large: start from rest (rhs is zero at a reference state without load)
         qdd_f = jnp.zeros(s.n_free)
-    qdd = jnp.zeros_like(q).at[s.free].set(qdd_f)
+    qdd = mdl.expand(model, qdd_f)
     return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv)
 
 
@@ -186,7 +211,7 @@ def _residual(model: Model, scheme, ctx: _StepContext, z):
     h = ctx.t1 - ctx.state.t
     f_int, Cv1 = mdl.internal_force(model, q, E, ctx.state.Cv, h)
     R = mdl.mass_apply(model, qdd1 + model.damping * v1) + f_int - ctx.f_ext
-    return R[s.free], Cv1
+    return mdl.reduce(model, R), Cv1
 
 
 def _iteration_matrix(model: Model, scheme, ctx: _StepContext, z):
@@ -202,48 +227,111 @@ def _iteration_matrix(model: Model, scheme, ctx: _StepContext, z):
     bp = (1.0 - scheme.alpha_m) / ((1.0 - scheme.alpha_f) * scheme.beta * h * h)
     gp = scheme.gamma / (scheme.beta * h)
     Ke = Ke + (bp + gp * model.damping) * mdl.mass_elements(model)
-    return R[s.free], Ke
+    return mdl.reduce(model, R), Ke
 
 
 def _make_newton(scheme: GeneralizedAlpha, opts: NewtonOptions, solver):
-    @jax.custom_jvp
-    def newton(model, ctx, z0):
+    """Newton solve of one step, z* = newton(model, ctx, z0, fac, valid).
+
+    Returns (z*, iterations, factorizations, err, fac): fac is the factorization in use
+    at the end (handed to the next step). Derivatives of z* are implicit (custom_jvp).
+    """
+
+    def _solve(model, ctx, z0, fac, valid):
         scale = jnp.asarray(model.structure.dof_scale)
 
         def body(c):
-            z, _, it, _ = c
-            R, Ke = _iteration_matrix(model, scheme, ctx, z)
-            dz = solver.solve(model, Ke, -R)
-            err = jnp.max(jnp.abs(dz) / scale)
-            finite = jnp.all(jnp.isfinite(dz))
-            return z + dz, err, it + 1, finite
+            z, err, err_prev, it, nfac, finite, fac, valid = c
+            slow = (it >= 1) & (err > opts.refactor_rate * err_prev)
+            need = (~valid) | slow if opts.reuse else jnp.asarray(True)
+
+            def refactor(z):
+                R, Ke = _iteration_matrix(model, scheme, ctx, z)
+                return R, solver.factor(model, Ke)
+
+            def keep(z):
+                return _residual(model, scheme, ctx, z)[0], fac
+
+            R, fac = jax.lax.cond(need, refactor, keep, z)
+            dz = _backtrack(model, ctx, z, solver.solve_factored(fac, -R))
+            e = jnp.max(jnp.abs(dz) / scale)
+            ok = jnp.all(jnp.isfinite(dz)) & jnp.isfinite(e)
+            # a stale factorization that diverges (or yields non-finite values) is not
+            # applied: the iterate is kept and the next iteration refactors
+            reject = (~need) & ((~ok) | ((it >= 1) & (e > err)))
+            z = jnp.where(reject | ~ok, z, z + dz)
+            e = jnp.where(reject, err, e)
+            finite = ok | reject
+            return z, e, jnp.where(reject, err_prev, err), it + 1, nfac + need.astype(int), finite, fac, ~reject
 
         def cond(c):
-            _, err, it, finite = c
+            _, err, _, it, _, finite, _, _ = c
             return (err > opts.tol) & (it < opts.max_iter) & finite
 
-        z, err, it, finite = jax.lax.while_loop(cond, body, (z0, jnp.asarray(jnp.inf), jnp.asarray(0), jnp.asarray(True)))
-        return z, it, err
+        inf = jnp.asarray(jnp.inf)
+        c0 = (z0, inf, inf, jnp.asarray(0), jnp.asarray(0), jnp.asarray(True), fac, jnp.asarray(valid))
+        z, err, _, it, nfac, finite, fac, _ = jax.lax.while_loop(cond, body, c0)
+        err = jnp.where(finite, err, jnp.inf)
+        return z, it, nfac, err, fac
+
+    @jax.custom_jvp
+    def newton(model, ctx, z0, fac, valid):
+        return _solve(model, ctx, z0, fac, valid)
 
     @newton.defjvp
     def newton_jvp(primals, tangents):
-        model, ctx, z0 = primals
-        dmodel, dctx, _ = tangents
-        z, it, err = newton(model, ctx, z0)
+        model, ctx, z0, fac, valid = primals
+        dmodel, dctx = tangents[0], tangents[1]
+        out = newton(model, ctx, z0, fac, valid)
+        z = out[0]
         _, dR = jax.jvp(lambda m, c: _residual(m, scheme, c, z)[0], (model, ctx), (dmodel, dctx))
         _, Ke = _iteration_matrix(model, scheme, ctx, z)
         dz = solver.solve(model, Ke, -dR)
-        return (z, it, err), (dz, np.zeros(it.shape, dtype=jax.dtypes.float0), jnp.zeros_like(err))
+        return out, (dz, *(_zero_tangent(x) for x in out[1:]))
 
     return newton
 
 
+def _admissible(model: Model, ctx: _StepContext, z) -> jax.Array:
+    """True if every Gauss point has det F > 0 and lies inside the Gent limits (viscous
+    branches judged with the step's starting Cv)."""
+    q = mdl.full_coordinates(model, z, ctx.u1)
+    F = mdl.deformation_gradients(model, q)
+    J = jax.vmap(jax.vmap(det3))(F)
+    H = mdl.gent_margins(model, q, ctx.state.Cv)
+    return jnp.all(J > 0) & jnp.all(H > 0)
+
+
+def _backtrack(model: Model, ctx: _StepContext, z, dz, max_halvings: int = 12):
+    """Halve the Newton correction until the new iterate is admissible (safeguarded Newton:
+    keeps iterates out of inverted or past-Gent-limit states where the energy is undefined)."""
+
+    def cond(c):
+        a, k = c
+        return (~_admissible(model, ctx, z + a * dz)) & (k < max_halvings)
+
+    a, _ = jax.lax.while_loop(cond, lambda c: (0.5 * c[0], c[1] + 1), (jnp.asarray(1.0), 0))
+    return a * dz
+
+
+def _zero_tangent(x):
+    """A zero tangent for any pytree (float0 for integer leaves)."""
+    def leaf(a):
+        a = jnp.asarray(a)
+        if jnp.issubdtype(a.dtype, jnp.integer) or a.dtype == bool:
+            return np.zeros(a.shape, dtype=jax.dtypes.float0)
+        return jnp.zeros_like(a)
+
+    return jax.tree_util.tree_map(leaf, x)
+
+
 def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), solver=None):
-    """Return ``step(model, loading, state, t1) -> (state1, iterations, status)``."""
+    """Return ``step(model, loading, state, t1, fac, valid) -> (state1, iterations,
+    factorizations, status, fac1)``."""
     solver = DenseSolver() if solver is None else solver
     newton = _make_newton(scheme, opts, solver)
 
-    def step(model: Model, loading: Loading, state: State, t1):
+    def step(model: Model, loading: Loading, state: State, t1, fac, valid):
         s = model.structure
         t1 = jnp.asarray(t1, dtype=float)
         h = t1 - state.t
@@ -257,8 +345,13 @@ def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions
         # predictor (Eq. 33)
         b, am, af = scheme.beta, scheme.alpha_m, scheme.alpha_f
         a0 = (af * state.qdd - am * state.a) / (1.0 - am)
-        q_pred = state.q + h * state.v + h * h * (0.5 - b) * state.a + h * h * b * a0
-        z, it, err = newton(model, ctx, q_pred[s.free])
+        if opts.predictor == "paper":
+            q_pred = state.q + h * state.v + h * h * (0.5 - b) * state.a + h * h * b * a0
+        elif opts.predictor == "velocity":
+            q_pred = state.q + h * state.v
+        else:
+            q_pred = state.q
+        z, it, nfac, err, fac = newton(model, ctx, q_pred[s.free], fac, valid)
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = _kinematics(scheme, ctx, q1)
         E = mdl.nominal_field(model, ctx.phi1)
@@ -277,8 +370,9 @@ def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions
                 jnp.where(gent, int(Status.GENT_LIMIT), jnp.where(err > opts.tol, int(Status.NEWTON_FAILED), 0)),
             ),
         )
-        return new, it, status
+        return new, it, nfac, status, fac
 
+    step.solver = solver
     return step
 
 
@@ -286,32 +380,41 @@ def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions
 
 
 class Carry(eqx.Module):
+    """Scan carry: state, status, first failed step, step offset (chunked runs), and the
+    iteration-matrix factorization reused across steps (with its validity flag)."""
+
     state: State
     status: jax.Array
     fail_step: jax.Array
     step_offset: jax.Array
+    fac: object
+    fac_valid: jax.Array
+
+
+def initial_carry(model: Model, state: State, solver) -> Carry:
+    return Carry(state, jnp.asarray(0), jnp.asarray(-1), jnp.asarray(0), solver.empty(model), jnp.asarray(False))
 
 
 def make_scan(step, output_fn: Callable):
-    """Return ``run(model, loading, carry, times, active) -> (carry, (outputs, iterations))``:
-    lax.scan of ``step`` over the time grid ``times`` (n,), skipping inactive entries (padding)
-    and every step after a failure."""
+    """Return ``run(model, loading, carry, times, active) -> (carry, (outputs, iterations,
+    factorizations))``: lax.scan of ``step`` over the time grid ``times`` (n,), skipping
+    inactive entries (padding) and every step after a failure."""
 
     def run(model, loading, carry: Carry, times, active):
         def body(c: Carry, xs):
             t1, k, on = xs
 
             def do(c):
-                new, it, st = step(model, loading, c.state, t1)
+                new, it, nfac, st, fac = step(model, loading, c.state, t1, c.fac, c.fac_valid)
                 failed = st != 0
                 state = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), c.state, new)
-                return Carry(state, st, jnp.where(failed, k, c.fail_step), c.step_offset), it
+                return Carry(state, st, jnp.where(failed, k, c.fail_step), c.step_offset, fac, ~failed), (it, nfac)
 
             def skip(c):
-                return c, jnp.asarray(0)
+                return c, (jnp.asarray(0), jnp.asarray(0))
 
-            c, it = jax.lax.cond((c.status == 0) & on, do, skip, c)
-            return c, (output_fn(model, loading, c.state), it)
+            c, (it, nfac) = jax.lax.cond((c.status == 0) & on, do, skip, c)
+            return c, (output_fn(model, loading, c.state), it, nfac)
 
         steps = jnp.arange(times.shape[0]) + carry.step_offset
         return jax.lax.scan(body, carry, (times, steps, active))
@@ -324,13 +427,15 @@ class Solution:
     """What ``simulate`` returns.
 
     time: (n+1,) s; outputs: name -> (n+1, ...) arrays (row 0 = initial state);
-    iterations: (n,) Newton iterations per step; status: Status; fail_time (s) and
+    iterations: (n,) Newton iterations per step; factorizations: (n,) iteration-matrix
+    factorizations per step; status: Status; fail_time (s) and
     fail_step (-1 if none); final: the last State (the last converged one after a failure).
     """
 
     time: jax.Array
     outputs: dict
     iterations: jax.Array
+    factorizations: jax.Array
     status: jax.Array
     fail_step: jax.Array
     final: State
@@ -353,7 +458,7 @@ class Solution:
 
 jax.tree_util.register_pytree_node(
     Solution,
-    lambda s: ((s.time, s.outputs, s.iterations, s.status, s.fail_step, s.final), None),
+    lambda s: ((s.time, s.outputs, s.iterations, s.factorizations, s.status, s.fail_step, s.final), None),
     lambda _, c: Solution(*c),
 )
 
@@ -396,10 +501,9 @@ def simulate(
     tt = jnp.concatenate([jnp.asarray(times[1:], dtype=float), jnp.full(m - n, times[-1])])
     active = jnp.arange(m) < n
     sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), tt, active, output_fn, scheme, newton, solver, state0)
-    if m == n:
-        return Solution(jnp.asarray(times), sol.outputs, sol.iterations, sol.status, sol.fail_step, sol.final)
     outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)
-    return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.status, sol.fail_step, sol.final)
+    return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.factorizations[:n], sol.status, sol.fail_step,
+                    sol.final)
 
 
 @eqx.filter_jit
@@ -407,11 +511,10 @@ def _simulate_jit(model, loading, t0, times, active, output_fn, scheme, newton, 
     step = make_step(scheme, newton, solver)
     run = make_scan(step, output_fn)
     s0 = initial_state(model, loading, t0) if state0 is None else state0
-    carry = Carry(state=s0, status=jnp.asarray(0), fail_step=jnp.asarray(-1), step_offset=jnp.asarray(0))
-    carry, (outs, its) = run(model, loading, carry, times, active)
+    carry, (outs, its, nfac) = run(model, loading, initial_carry(model, s0, step.solver), times, active)
     out0 = output_fn(model, loading, s0)
     outputs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
-    return Solution(times, outputs, its, carry.status, carry.fail_step, carry.state)
+    return Solution(times, outputs, its, nfac, carry.status, carry.fail_step, carry.state)
 
 
 def run_chunked(
@@ -442,11 +545,11 @@ def run_chunked(
     chunk = max(1, min(int(chunk), n))
     step = make_step(scheme, newton, solver)
     run = eqx.filter_jit(make_scan(step, output_fn))
-    s0 = initial_state(model, loading, times[0])
-    carry = Carry(state=s0, status=jnp.asarray(0), fail_step=jnp.asarray(-1), step_offset=jnp.asarray(0))
+    s0 = _initial_state_jit(model, loading, jnp.asarray(times[0]))
+    carry = initial_carry(model, s0, step.solver)
     snap_idx = sorted({int(np.argmin(np.abs(times - ts))) for ts in snapshot_times})
     snapshots = {0: s0} if 0 in snap_idx else {}
-    outs, its = [], []
+    outs, its, facs = [], [], []
 
     def chunk_args(k):
         m = min(chunk, n - k)
@@ -463,11 +566,13 @@ def run_chunked(
     k = 0
     while k < n:
         m, tt, act = chunk_args(k)
-        carry, (o, it) = compiled(model, loading, carry, tt, act)
+        carry, (o, it, nf) = compiled(model, loading, carry, tt, act)
         outs.append(jax.tree_util.tree_map(lambda a: a[:m], o))
         its.append(it[:m])
+        facs.append(nf[:m])
         k += m
-        carry = Carry(carry.state, carry.status, carry.fail_step, carry.step_offset + m)
+        carry = Carry(
+            carry.state, carry.status, carry.fail_step, carry.step_offset + m, carry.fac, carry.fac_valid)
         for j in snap_idx:
             if k - m < j <= k and j not in snapshots:
                 snapshots[j] = carry.state
@@ -481,7 +586,6 @@ def run_chunked(
     out0 = output_fn(model, loading, s0)
     outputs = jax.tree_util.tree_map(lambda a, *b: jnp.concatenate([a[None], *b]), out0, *outs)
     iterations = jnp.concatenate(its)
-    sol = Solution(
-        jnp.asarray(times[: iterations.shape[0] + 1]), outputs, iterations, carry.status, carry.fail_step, carry.state
-    )
+    sol = Solution(jnp.asarray(times[: iterations.shape[0] + 1]), outputs, iterations, jnp.concatenate(facs),
+                   carry.status, carry.fail_step, carry.state)
     return sol, snapshots, compile_s, run_s

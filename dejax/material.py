@@ -65,7 +65,7 @@ class Material(eqx.Module):
         self.Jm_inf = jnp.asarray(Jm_inf, dtype=float)
         self.eps = jnp.asarray(eps, dtype=float)
         self.rho = jnp.asarray(rho, dtype=float)
-        n = len(np.atleast_1d(np.asarray(mu, dtype=float)))
+        n = jnp.atleast_1d(jnp.asarray(mu, dtype=float)).reshape(-1).shape[0]  # static, also for tracers
         arrs = []
         for name, v in (("mu", mu), ("K", K), ("Jm", Jm), ("eta", eta)):
             a = jnp.atleast_1d(jnp.asarray(v, dtype=float)).reshape(-1)
@@ -110,6 +110,27 @@ class Material(eqx.Module):
         return self
 
 
+def det3(A):
+    """Determinant of a 3 x 3 matrix by cofactors (vectorises far better than LAPACK on CPU)."""
+    return (
+        A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
+        - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+        + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0])
+    )
+
+
+def inv3(A):
+    """Inverse of a 3 x 3 matrix by the adjugate."""
+    cof = jnp.stack(
+        [
+            jnp.stack([A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1], A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2], A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]]),
+            jnp.stack([A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2], A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0], A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]]),
+            jnp.stack([A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0], A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1], A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]]),
+        ]
+    )
+    return cof / det3(A)
+
+
 def _safe_log1m(x):
     """ln(1 - x) for x < 1; returns 0 (not NaN) past the limit, which is flagged elsewhere."""
     ok = x < 1.0
@@ -129,18 +150,18 @@ def gent_margin(I1bar, Jm):
 def equilibrium_energy(F, E, mat: Material):
     """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3."""
     C = F.T @ F
-    J = jnp.linalg.det(F)
+    J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
-    elec = -0.5 * mat.eps * J * (E @ jnp.linalg.solve(C, E))
+    elec = -0.5 * mat.eps * J * (E @ inv3(C) @ E)
     return gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + 0.5 * mat.K_inf * (J - 1.0) ** 2 + elec
 
 
 def _viscous_invariants(F, Cv):
     """(Je, I1e) of one unit: Je = J / sqrt(det Cv), I1e = tr(C Cv^-1)."""
     C = F.T @ F
-    J = jnp.linalg.det(F)
-    Je = J / jnp.sqrt(jnp.linalg.det(Cv))
-    I1e = jnp.trace(jnp.linalg.solve(Cv, C))
+    J = det3(F)
+    Je = J / jnp.sqrt(det3(Cv))
+    I1e = jnp.sum(C * inv3(Cv).T)  # tr(C Cv^-1)
     return Je, I1e
 
 
@@ -161,7 +182,7 @@ def free_energy(F, E, Cv, mat: Material):
 def min_gent_margin(F, Cv, mat: Material):
     """Smallest Gent margin H over the equilibrium branch and every viscous unit."""
     C = F.T @ F
-    J = jnp.linalg.det(F)
+    J = det3(F)
     h = gent_margin(J ** (-2.0 / 3.0) * jnp.trace(C), mat.Jm_inf)
     if mat.n_units:
         def unit(Cv_s, Jm):
@@ -187,7 +208,7 @@ def min_gent_margin(F, Cv, mat: Material):
 
 def _cv_from_rate(A, C, Cv_old, dt):
     B = Cv_old + dt * A * C
-    kappa = (jnp.linalg.det(B) / jnp.linalg.det(Cv_old)) ** (1.0 / 3.0)
+    kappa = (det3(B) / det3(Cv_old)) ** (1.0 / 3.0)
     return B / kappa
 
 
@@ -258,6 +279,7 @@ def update_all_units(F, Cv_old, dt, mat: Material):
     """viscous_update for every unit: Cv_old (n_units, 3, 3) -> (n_units, 3, 3)."""
     if not mat.n_units:
         return Cv_old
+    Cv_old = jnp.asarray(Cv_old)  # JAX: jit(vmap(custom_jvp)) rejects a closed-over numpy constant
     return jax.vmap(viscous_update, in_axes=(None, 0, None, 0, 0, 0))(F, Cv_old, dt, mat.mu, mat.eta, mat.Jm)
 
 
@@ -299,14 +321,17 @@ def check_state(F, Cv, mat: Material, where: str = "") -> None:
     Cvf = jnp.asarray(Cv).reshape((-1, mat.n_units, 3, 3)) if mat.n_units else jnp.zeros((Ff.shape[0], 0, 3, 3))
     H = np.asarray(jax.vmap(min_gent_margin, in_axes=(0, 0, None))(Ff, Cvf, mat))
     J = np.asarray(jnp.linalg.det(Ff))
+    point = lambda i: tuple(int(k) for k in np.unravel_index(i, batch))
     if np.any(J <= 0):
         i = int(np.argmin(J))
-        raise GentLimitError(f"{where}inverted material: det F = {J[i]:.3e} <= 0 at point {np.unravel_index(i, batch)}")
+        raise GentLimitError(f"{where}inverted material: det F = {J[i]:.3e} <= 0 at point {point(i)}")
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(H))):
+        i = int(np.flatnonzero(~(np.isfinite(J) & np.isfinite(H)))[0])
+        raise GentLimitError(f"{where}non-finite state (det F = {J[i]:.3e}, Gent margin {H[i]:.3e}) at point {point(i)}")
     if np.any(H <= 0):
         i = int(np.argmin(H))
         raise GentLimitError(
-            f"{where}state past the Gent limit: 1 - (I1bar - 3)/Jm = {H[i]:.3e} <= 0 at point "
-            f"{np.unravel_index(i, batch) if batch else ()}"
+            f"{where}state past the Gent limit: 1 - (I1bar - 3)/Jm = {H[i]:.3e} <= 0 at point {point(i)}"
         )
 
 

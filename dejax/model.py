@@ -37,7 +37,8 @@ class Structure:
     conn: np.ndarray  # (n_el, 8)
     slots: np.ndarray  # (n_el, 32) global slot index 4 node + k
     edofs: np.ndarray  # (n_el, 96) global coordinate index
-    free: np.ndarray  # (n_free,)
+    free: np.ndarray  # (n_free,) one representative coordinate per reduced unknown
+    col: np.ndarray  # (n_dofs,) reduced unknown of each coordinate, -1 if constrained
     constrained: np.ndarray  # (n_constrained,)
     n_dofs: int
     gauss_order: int
@@ -102,7 +103,16 @@ def build_model(
     conn = mesh.conn
     slots = (4 * conn[:, :, None] + np.arange(4)).reshape(len(conn), 32)
     edofs = (3 * slots[:, :, None] + np.arange(3)).reshape(len(conn), 96)
-    free, constrained, dirs = constraints.split()
+    col, constrained, dirs, free = constraints.split()
+    q0_np = None
+    try:
+        q0_np = np.asarray(mesh.reference_coordinates())
+    except jax.errors.TracerArrayConversionError:
+        pass
+    if q0_np is not None:
+        for group in constraints.ties:
+            if np.ptp(q0_np[group]) > 1e-12 * max(1.0, np.max(np.abs(q0_np[group]))):
+                raise ValueError(f"tied coordinates {group[:4]}... have different reference values")
     is_pos = (free % 12) < 3
     dof_scale = np.where(is_pos, ell, 1.0)
     structure = Structure(
@@ -110,6 +120,7 @@ def build_model(
         slots=slots,
         edofs=edofs,
         free=free,
+        col=col,
         constrained=constrained,
         n_dofs=mesh.n_dofs,
         gauss_order=int(gauss_order),
@@ -145,7 +156,20 @@ def full_coordinates(model: Model, z: jax.Array, u: jax.Array) -> jax.Array:
     """q = q_p(t) + T z: free values z (n_free,), motion amplitudes u (n_motion,) -> q (n_dofs,)."""
     s = model.structure
     qc = model.q0[s.constrained] + u @ model.prescribed_dirs
-    return jnp.zeros(s.n_dofs, dtype=z.dtype).at[s.free].set(z).at[s.constrained].set(qc)
+    return expand(model, z).at[s.constrained].set(qc)
+
+
+def expand(model: Model, z: jax.Array) -> jax.Array:
+    """T z: reduced vector (n_free,) -> coordinates (n_dofs,), zero on constrained ones."""
+    col = model.structure.col
+    return jnp.where(jnp.asarray(col >= 0), z[np.maximum(col, 0)], 0.0)
+
+
+def reduce(model: Model, r: jax.Array) -> jax.Array:
+    """T^T r: coordinate vector (n_dofs,) -> reduced vector (n_free,) (tied entries summed)."""
+    s = model.structure
+    valid = np.nonzero(s.col >= 0)[0]
+    return jnp.zeros(s.n_free, r.dtype).at[s.col[valid]].add(r[valid])
 
 
 def element_coordinates(model: Model, q: jax.Array) -> jax.Array:
@@ -202,6 +226,15 @@ def internal_force(model: Model, q, E, Cv_old, dt):
     return scatter_slots(model, fe), Cv_new
 
 
+def internal_force_at(model: Model, q, E, Cv):
+    """(n_dofs,) internal force with the viscous state Cv held fixed (no update)."""
+    F = deformation_gradients(model, q)
+    grad = jax.grad(free_energy, argnums=0)
+    P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
+    fe = jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
+    return scatter_slots(model, fe)
+
+
 def element_tangents(model: Model, q, E, Cv_old, dt):
     """Element force vectors and consistent tangents.
 
@@ -238,10 +271,9 @@ def gravity_force(model: Model) -> jax.Array:
 
 
 def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:
-    """Dense (n_free, n_free) matrix from element matrices (n_el, 96, 96)."""
+    """Dense T^T K T (n_free, n_free) from element matrices (n_el, 96, 96)."""
     s = model.structure
-    pos = np.full(s.n_dofs, s.n_free, dtype=np.int64)  # constrained -> dropped row/col
-    pos[s.free] = np.arange(s.n_free)
+    pos = np.where(s.col >= 0, s.col, s.n_free)  # constrained -> dropped row/col; tied -> summed
     idx = pos[s.edofs]
     K = jnp.zeros((s.n_free + 1, s.n_free + 1), Ke.dtype)
     K = K.at[idx[:, :, None], idx[:, None, :]].add(Ke)

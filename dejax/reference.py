@@ -31,7 +31,13 @@ stress is 2 mu_s dev(e - e_v). The unit therefore relaxes with
 i.e. half of the "tau = eta/mu" quoted in NOTES.md (that value belongs to a
 Maxwell dashpot sigma = 2 eta de_v/dt; this flow rule is sigma = eta de_v/dt).
 For the paper's block (mu_1 = 67 kPa, eta_1 = 3000 Pa s) tau_1 = 22.4 ms, not
-45 ms. ``relaxation_time(mu, eta)`` returns this value.
+45 ms. ``relaxation_time(mu, eta)`` returns this value. Under a *held voltage* the
+block creeps more slowly: linearising the block equations below,
+6 mu_inf e + 6 mu_1 (e - v) = eps E^2 and dv/dt = (2 mu_1/eta_1)(e - v), so
+tau_creep = eta_1 (mu_inf + mu_1)/(2 mu_1 mu_inf) = 44.8 ms, which coincides with
+NOTES.md's "eta_1/mu_1 = 45 ms" only because mu_inf = mu_1 there. Either way the
+viscous delay is short against the 1 s ramp, and by t = 3 s the unit is fully
+relaxed: NOTES.md's lam(3 s) values are the mu_inf-only Gent equilibrium.
 
 **Verdict on NOTES.md's block equations** ("Homogeneous block reference"): they
 are correct. Derivation: F = diag(lam, lam, lam^-2), Cv = diag(xi^2, xi^2,
@@ -76,6 +82,8 @@ __all__ = [
     "relaxation_time",
     "eq41_voltage",
     "eq41",
+    "ramp_hold_stretch",
+    "ramp_hold",
     "homogeneous_block_response",
     "homogeneous_uniaxial_response",
     "ReferenceSolveError",
@@ -112,7 +120,7 @@ def gent_limit_stretch(Jm):
     Jm = float(Jm)
     g = lambda l: 2.0 * l * l + l**-4 - 3.0 - Jm
     hi = math.sqrt((Jm + 3.0) / 2.0) + 1.0  # 2 hi^2 - 3 > Jm
-    return optimize.brentq(g, 1.0 + 1e-15, hi, xtol=1e-15, rtol=4e-16, maxiter=500)
+    return optimize.brentq(g, 1.0 + 1e-15, hi, xtol=1e-15, rtol=1e-15, maxiter=500)
 
 
 def gent_equibiaxial_voltage(lam, L, mu_inf, Jm_inf, eps):
@@ -160,7 +168,7 @@ def pullin_voltage(L, mu_inf, Jm_inf, eps):
         return math.inf, math.nan
     i = int(neg[0])
     lo = grid[i - 1] if i > 0 else 1.0 + 1e-12
-    lam_max = optimize.brentq(lambda l: _eb_ratio_slope_num(l, Jm), lo, grid[i], xtol=1e-15, rtol=4e-16, maxiter=500)
+    lam_max = optimize.brentq(lambda l: _eb_ratio_slope_num(l, Jm), lo, grid[i], xtol=1e-15, rtol=1e-15, maxiter=500)
     return float(gent_equibiaxial_voltage(lam_max, L, mu_inf, Jm, eps)), float(lam_max)
 
 
@@ -192,7 +200,7 @@ def gent_equibiaxial_stretch(phi, L, mu_inf, Jm_inf, eps):
         if g(hi) <= 0.0:  # at the pull-in voltage itself (to round-off)
             out[k] = hi
         else:
-            out[k] = optimize.brentq(g, 1.0, hi, xtol=1e-15, rtol=4e-16, maxiter=500)
+            out[k] = optimize.brentq(g, 1.0, hi, xtol=1e-15, rtol=1e-15, maxiter=500)
     return out if out.ndim else float(out)
 
 
@@ -221,10 +229,33 @@ def eq41(phi_m):
     return jax.tree_util.Partial(eq41_voltage, phi_m=jnp.asarray(phi_m, dtype=float))
 
 
+def ramp_hold_stretch(t, lam_max, t_ramp, smooth=False):
+    """Stretch history: ramp from 1 to lam_max over t_ramp (s), then hold (jnp-compatible).
+
+    Linear ramp, or the C^1 ramp 1 + (lam_max - 1)(1 - cos(pi t/t_ramp))/2 if ``smooth``;
+    t_ramp = 0 is a step to lam_max at t = 0.
+    """
+    t = jnp.asarray(t)
+    pos = t_ramp > 0
+    frac = jnp.where(pos, jnp.clip(t / jnp.where(pos, t_ramp, 1.0), 0.0, 1.0), 1.0)
+    frac = jnp.where(smooth, 0.5 * (1.0 - jnp.cos(jnp.pi * frac)), frac)
+    return 1.0 + (lam_max - 1.0) * frac
+
+
+def ramp_hold(lam_max, t_ramp, smooth=False):
+    """``t -> ramp_hold_stretch(t, lam_max, t_ramp, smooth)`` as a pytree Partial.
+
+    All three numbers are arrays, so one compilation serves every ramp (and the step).
+    """
+    return jax.tree_util.Partial(
+        ramp_hold_stretch, lam_max=jnp.asarray(lam_max, dtype=float), t_ramp=jnp.asarray(t_ramp, dtype=float),
+        smooth=jnp.asarray(bool(smooth)),
+    )
+
+
 # ---------------------------------------------------------------------------
-# Generic machinery: scalar Newton with implicit-function derivatives, and an
-# index-1 DAE integrated as an ODE for the differential states x plus a
-# carried warm-start guess z for the algebraic unknown.
+# Generic machinery: scalar Newton with implicit-function derivatives, unit
+# padding, and the diffrax call.
 # ---------------------------------------------------------------------------
 
 
@@ -240,7 +271,7 @@ def _newton_primal(resid, z0, x, t, args):
 
     def cond(c):
         z, step, k = c
-        return (step > 1e-14 * jnp.abs(z)) & (k < 80)  # NaN step: stops
+        return (step > 1e-14 * jnp.abs(z)) & (k < 80)  # a NaN step stops the loop
 
     z, step, _ = jax.lax.while_loop(cond, body, (z0, jnp.asarray(jnp.inf, z0.dtype), 0))
     ok = jnp.isfinite(z) & (step <= 1e-10 * jnp.abs(z)) & jnp.isfinite(g(z))
@@ -269,34 +300,38 @@ def _newton(resid, z0, x, t, args):
     """Root z of resid(z, x, t, args) = 0 from z0 (NaN if Newton fails or the root is inadmissible).
 
     Derivatives with respect to x, t and the array leaves of args follow from the implicit
-    function theorem (custom JVP), so forward-mode Jacobians (implicit ODE solvers) are exact.
+    function theorem (custom JVP), so Jacobians for implicit ODE solvers are exact.
     """
     dyn, static = eqx.partition(args, eqx.is_array)
     t = jnp.asarray(t, dtype=float)
     return _newton_impl(resid, static, jnp.asarray(z0, dtype=float), x, t, dyn)
 
 
-def _dae_field(resid, rate):
-    """Vector field for y = (z_guess, x): z solves resid = 0 (index-1 DAE), x' = rate(z, x, t, args).
-
-    The carried z_guess follows dz/dt = -(d resid/dt at fixed z)/(d resid/dz), i.e. the
-    differentiated constraint, but it is only a warm start: the z used in the rates is
-    always re-solved by Newton, so no drift off the constraint can accumulate.
-    """
-
-    def field(t, y, args):
-        zg, x = y
-        z = _newton(resid, zg, x, t, args)
-        xdot = rate(z, x, t, args)
-        rz = jax.grad(resid)(z, x, t, args)
-        _, rdot = jax.jvp(lambda x_, t_: resid(z, x_, t_, args), (x, t), (xdot, jnp.ones_like(t)))
-        return -rdot / rz, xdot
-
-    return field
+_PAD = 4  # units are padded with inert ones (mu = 0, Jm = inf) to a multiple of this: fewer compilations
 
 
-def _default_solver():
-    return diffrax.Kvaerno5()
+def _units(mu, Jm, eta):
+    mu = np.atleast_1d(np.asarray(mu, dtype=float)).reshape(-1)
+    Jm = np.atleast_1d(np.asarray(Jm, dtype=float)).reshape(-1)
+    eta = np.atleast_1d(np.asarray(eta, dtype=float)).reshape(-1)
+    if not (mu.shape == Jm.shape == eta.shape):
+        raise ValueError(f"mu, Jm, eta need one entry per viscous unit: got {mu.shape}, {Jm.shape}, {eta.shape}")
+    if np.any(mu <= 0) or np.any(Jm <= 0) or np.any(eta <= 0):
+        raise ValueError("mu, Jm, eta of every viscous unit must be > 0")
+    return mu, Jm, eta
+
+
+def _padded(mu, Jm, eta):
+    """Pad to a multiple of _PAD with inert units: mu = 0 (no stress, zero rate), Jm = inf (H = 1), eta = 1."""
+    n = mu.size
+    m = max(_PAD, -(-n // _PAD) * _PAD)
+    pad = lambda a, v: np.concatenate([a, np.full(m - n, v)])
+    return pad(mu, 0.0), pad(Jm, np.inf), pad(eta, 1.0)
+
+
+def _stiffness(t0, t1, mu, eta):
+    """Time span over the smallest small-strain relaxation time eta_s/(2 mu_s) (0 without units)."""
+    return 0.0 if mu.size == 0 else float((t1 - t0) / np.min(eta / (2.0 * mu)))
 
 
 def _diffeqsolve(field, y0, t0, ts, args, solver, rtol, atol, max_steps):
@@ -309,19 +344,30 @@ def _diffeqsolve(field, y0, t0, ts, args, solver, rtol, atol, max_steps):
         y0=y0,
         args=args,
         saveat=diffrax.SaveAt(ts=ts),
-        stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
+        # Steps land on the output times: dense interpolation of a stiff (fast-relaxing) unit
+        # between large implicit steps is far less accurate than the step end values.
+        # dtmin: a state with no admissible equilibrium (NaN rates) fails fast instead of
+        # exhausting max_steps with ever smaller rejected steps.
+        stepsize_controller=diffrax.PIDController(
+            rtol=rtol, atol=atol, step_ts=ts, dtmin=1e-13 * (ts[-1] - t0), force_dtmin=False
+        ),
         max_steps=max_steps,
         throw=False,
     )
     return sol.ys, sol.result == diffrax.RESULTS.successful, sol.stats["num_steps"]
 
 
-def _check_run(ok, nsteps, max_steps, what):
+def _check_run(ok, nsteps, max_steps, what, ts=None, states=None):
     if not bool(ok):
+        where = ""
+        if ts is not None and states is not None:
+            fin = np.all(np.isfinite(np.asarray(states).reshape(len(ts), -1)), axis=1)
+            where = (f" before t = {ts[int(np.argmin(fin))]} s" if not fin.all() else "")
         raise ReferenceSolveError(
-            f"{what}: time integration failed after {int(nsteps)} steps (max_steps = {max_steps}); the "
-            "state probably left the admissible set (no equilibrium past pull-in, or the Gent limit "
-            "1 - (I1 - 3)/Jm <= 0 reached), or max_steps is too small"
+            f"{what}: time integration failed{where} after {int(nsteps)} steps (max_steps = {max_steps}); "
+            "the state probably left the admissible set (no equilibrium past pull-in, or the Gent "
+            "limit 1 - (I1 - 3)/Jm <= 0 reached), or the problem is too stiff for the step budget "
+            "(raise max_steps, or pass an implicit diffrax solver with rtol ~ 1e-8)"
         )
 
 
@@ -334,15 +380,10 @@ def _times(t, t0):
     return t
 
 
-def _units(mu, Jm, eta):
-    mu = np.atleast_1d(np.asarray(mu, dtype=float)).reshape(-1)
-    Jm = np.atleast_1d(np.asarray(Jm, dtype=float)).reshape(-1)
-    eta = np.atleast_1d(np.asarray(eta, dtype=float)).reshape(-1)
-    if not (mu.shape == Jm.shape == eta.shape):
-        raise ValueError(f"mu, Jm, eta need one entry per viscous unit: got {mu.shape}, {Jm.shape}, {eta.shape}")
-    if np.any(mu <= 0) or np.any(Jm <= 0) or np.any(eta <= 0):
-        raise ValueError("mu, Jm, eta of every viscous unit must be > 0")
-    return mu, Jm, eta
+def _bucket(ts):
+    """Pad the output times (repeating the last) to a multiple of 16: fewer compilations."""
+    m = max(16, -(-ts.size // 16) * 16)
+    return jnp.asarray(np.concatenate([ts, np.full(m - ts.size, ts[-1])]))
 
 
 def _nan_unless(ok, v):
@@ -374,25 +415,30 @@ def _block_rate(lam, xi, t, args):
     return p["mu"] / (3.0 * p["eta"] * Hs) * (lam**2 / xi - lam**-4 * xi**5)
 
 
-_block_field = _dae_field(_block_resid, _block_rate)
+def _block_lam(xi, t, args):
+    # warm start: the stretch at which the most relaxed unit would carry no stress (lam = xi),
+    # not below the reference state: exact when all units are relaxed, 1 when they are frozen
+    return _newton(_block_resid, jnp.maximum(1.0, jnp.max(xi)), xi, t, args)
+
+
+def _block_field(t, xi, args):
+    return _block_rate(_block_lam(xi, t, args), xi, t, args)
 
 
 @eqx.filter_jit
 def _block_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
-    n = args[0]["mu"].shape[0]
-    xi0 = jnp.ones((n,))
-    lam_start = _newton(_block_resid, jnp.asarray(1.0), xi0, t0, args)
+    xi0 = jnp.ones(args[0]["mu"].shape)
     if integrate:
-        (zg, xis), ok, nsteps = _diffeqsolve(_block_field, (lam_start, xi0), t0, ts, args, solver, rtol, atol, max_steps)
+        xis, ok, nsteps = _diffeqsolve(_block_field, xi0, t0, ts, args, solver, rtol, atol, max_steps)
     else:
-        zg, xis = jnp.full(ts.shape, lam_start), jnp.ones(ts.shape + (n,))
-        ok, nsteps = jnp.isfinite(lam_start), jnp.asarray(0)
-    lam = jax.vmap(lambda z, x, tt: _newton(_block_resid, z, x, tt, args))(zg, xis, ts)
+        xis, ok, nsteps = jnp.ones(ts.shape + xi0.shape), jnp.asarray(True), jnp.asarray(0)
+    lam = jax.vmap(lambda x, tt: _block_lam(x, tt, args))(xis, ts)
     return lam, xis, ok, nsteps
 
 
 def homogeneous_block_response(
-    t, phi_fn, L, mu_inf, Jm_inf, eps, mu, Jm, eta, rtol=1e-10, atol=1e-12, *, t0=0.0, solver=None, max_steps=100_000, return_xi=False
+    t, phi_fn, L, mu_inf, Jm_inf, eps, mu, Jm, eta, rtol=1e-10, atol=1e-12, *, t0=0.0, solver=None,
+    max_steps=1_000_000, return_xi=False,
 ):
     r"""Equal-biaxial stretch lam(t) of the incompressible viscoelastic Gent block (N >= 0 units).
 
@@ -406,15 +452,24 @@ def homogeneous_block_response(
         H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
         H_s   = 1 - (2 lam^2 xi_s^-2 + lam^-4 xi_s^4 - 3)/Jm_s
 
-    with xi_s(t0) = 1 (Cv = I at rest). This is an index-1 DAE. It is integrated as an
-    ODE in the viscous stretches xi with the algebraic equilibrium solved for lam by
-    Newton at every right-hand-side evaluation (implicit-function-theorem derivatives,
-    so implicit solvers get exact Jacobians). The Newton iteration is warm-started from
-    an extra carried state that follows the differentiated constraint
-    dlam/dt = -(g_xi . xi' + g_t)/g_lam; unlike a pure index reduction (ODE in (lam, xi)),
-    the constraint is re-solved exactly at every evaluation, so there is no drift, and
-    the warm start keeps Newton at 2-3 iterations. The default solver is diffrax's
-    Kvaerno5 (L-stable ESDIRK) so that arbitrarily small eta (stiff) work too.
+    with xi_s(t0) = 1 (Cv = I at rest). For one unit this is exactly NOTES.md's system.
+
+    Method (index-1 DAE): an ODE in the viscous stretches xi only; at every right-hand-side
+    evaluation the algebraic equilibrium is solved for lam by a scalar Newton iteration
+    (step-limited, converged to round-off), warm-started at max(1, max_s xi_s), the stretch
+    at which the most relaxed unit is stress-free (exact when all units are relaxed, the
+    reference state when they are frozen; a few iterations). This keeps the constraint exact
+    at every evaluation, whereas an index-reduced ODE in (lam, xi) (differentiated
+    constraint) drifts off the equilibrium by the accumulated integration error. lam is
+    differentiable in xi, t and the parameters through the implicit function theorem
+    (custom JVP), so implicit diffrax solvers may be passed as ``solver``.
+
+    Default solver: Tsit5 (explicit, 5th order). It is stability-limited for units much
+    faster than the loading (cost ~ span / (eta/2mu) steps, still fine for
+    eta/(2 mu) = 1.5e-6 s over 3 s). diffrax's ESDIRK solvers (Kvaerno3/4/5) were tried
+    for such stiff units (diffrax 0.7.2, Eq. 41 loading, eta/(2 mu) = 1.5e-6 s): they
+    stall (rejected steps without end) at rtol = 1e-10 and work at rtol = 1e-8 (Kvaerno5:
+    same lam to 8 digits as Tsit5), so pass one only with such a tolerance.
 
     Args:
       t: output times (s), non-decreasing, >= t0.
@@ -422,7 +477,7 @@ def homogeneous_block_response(
       L: thickness (m); mu_inf (Pa), Jm_inf (-), eps (F/m): equilibrium branch.
       mu, Jm, eta: per-unit shear modulus (Pa), Gent limit (-), viscosity (Pa s);
         scalars or length-N sequences (N = 0 allowed: pass ``()``).
-      rtol, atol: tolerances of the adaptive step-size controller.
+      rtol, atol: tolerances of the adaptive step-size controller (on xi).
       return_xi: also return xi(t) (len(t), N).
     Returns:
       lam(t) as a numpy array (and xi(t) if requested).
@@ -431,20 +486,23 @@ def homogeneous_block_response(
       history (pull-in, Gent limit) or the integration fails.
     """
     mu, Jm, eta = _units(mu, Jm, eta)
+    n = mu.size
     ts = _times(t, t0)
-    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mu, Jm=Jm, eta=eta).items()}
+    mup, Jmp, etap = _padded(mu, Jm, eta)
+    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mup, Jm=Jmp, eta=etap).items()}
     args = (p, phi_fn)
-    integrate = bool(mu.size > 0 and ts[-1] > t0)
-    lam, xis, ok, nsteps = _block_solve(jnp.asarray(t0, float), jnp.asarray(ts), args, solver or _default_solver(), rtol, atol, max_steps, integrate)
-    _check_run(ok, nsteps, max_steps, "homogeneous_block_response")
-    lam = np.asarray(lam)
+    integrate = bool(ts[-1] > t0)  # N = 0 runs through the same (padded, inert) path: one compilation
+    solver = solver or diffrax.Tsit5()
+    lam, xis, ok, nsteps = _block_solve(jnp.asarray(t0, float), _bucket(ts), args, solver, rtol, atol, max_steps, integrate)
+    lam, xis = np.asarray(lam)[: ts.size], np.asarray(xis)[: ts.size]
+    _check_run(ok, nsteps, max_steps, "homogeneous_block_response", ts, xis)
     if not np.all(np.isfinite(lam)):
         k = int(np.argmin(np.isfinite(lam)))
         raise ReferenceSolveError(
             f"homogeneous_block_response: no admissible equilibrium at t = {ts[k]} s (phi = "
             f"{float(phi_fn(ts[k]))} V): pull-in or Gent limit"
         )
-    return (lam, np.asarray(xis)) if return_xi else lam
+    return (lam, xis[:, :n]) if return_xi else lam
 
 
 # ---------------------------------------------------------------------------
@@ -480,11 +538,11 @@ def _uni_field(t, a, args):
 # With a voltage across direction 3 (nominal field E = phi/thickness):
 # F = diag(lam, l2, l3), l3 = 1/(lam l2); Cv_s = diag(c1, c2, c3), c3 = 1/(c1 c2), carried as
 # g = (ln c1, ln c2). Electric term -eps/2 E^2 C^-1_33 = -eps/2 E^2 lam^2 l2^2. Writing
-#   s_i = mu_inf l_i^2/H_inf + sum_s mu_s l_i^2/(c_si H_s)   (deviatoric-free "stress" parts)
-# the lateral equilibrium d W/d l2 = 0 (faces 2 and 3 traction free) reads
-#   s_2 - s_3 + eps E^2 / l3^2 = 0,       i.e.  sigma_2 = sigma_3 (= 0) incl. the Maxwell stress,
-# and the nominal stress P11 = d W/d lam at fixed l2 is
-#   P11 = (s_1 - s_3 + eps E^2 / l3^2)/lam.
+#   s_i = mu_inf l_i^2/H_inf + sum_s mu_s l_i^2/(c_si H_s)   (l_i dW_mech/dl_i)
+# the lateral equilibrium dW/dl2 = 0 (faces 2 and 3 traction free) reads
+#   s_2 - s_3 - eps E^2 / l3^2 = 0,  i.e. sigma_2 = sigma_3 (= 0) with the Maxwell stress,
+# and the nominal stress P11 = dW/dlam at fixed l2 is
+#   P11 = (s_1 - s_3 - eps E^2 / l3^2)/lam.
 # Flow rule: d ln c_i/dt = A (l_i^2/c_i - I1e/3), A = 2 mu_s/(eta_s H_s).
 
 
@@ -505,17 +563,20 @@ def _uv_resid(l2, g, t, args):
     lam = lam_fn(t)
     E = phi_fn(t) / p["thickness"]
     l, s, _, _, _, ok = _uv_parts(lam, l2, g, p)
-    return _nan_unless(ok, (s[1] - s[2] + p["eps"] * E**2 / l[2] ** 2) / p["mu_inf"])
+    return _nan_unless(ok, (s[1] - s[2] - p["eps"] * E**2 / l[2] ** 2) / p["mu_inf"])
 
 
-def _uv_rate(l2, g, t, args):
+def _uv_l2(g, t, args):
+    # warm start: the symmetric (zero-voltage, isotropic-Cv) lateral stretch lam^-1/2
+    return _newton(_uv_resid, jnp.asarray(args[1](t), float) ** -0.5, g, t, args)
+
+
+def _uv_field(t, g, args):
     p, lam_fn, _ = args
+    l2 = _uv_l2(g, t, args)
     _, _, r, I1e, Hs, _ = _uv_parts(lam_fn(t), l2, g, p)
     A = 2.0 * p["mu"] / (p["eta"] * Hs)
     return A[:, None] * (r[:, :2] - I1e[:, None] / 3.0)
-
-
-_uv_field = _dae_field(_uv_resid, _uv_rate)
 
 
 def _uv_stress(l2, g, t, args):
@@ -523,12 +584,37 @@ def _uv_stress(l2, g, t, args):
     lam = lam_fn(t)
     E = phi_fn(t) / p["thickness"]
     l, s, _, _, _, ok = _uv_parts(lam, l2, g, p)
-    return _nan_unless(ok, (s[0] - s[2] + p["eps"] * E**2 / l[2] ** 2) / lam)
+    return _nan_unless(ok, (s[0] - s[2] - p["eps"] * E**2 / l[2] ** 2) / lam)
+
+
+@eqx.filter_jit
+def _uni_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
+    p, lam_fn = args
+    a0 = jnp.ones(p["mu"].shape)
+    if integrate:
+        a, ok, nsteps = _diffeqsolve(_uni_field, a0, t0, ts, args, solver, rtol, atol, max_steps)
+    else:
+        a, ok, nsteps = jnp.ones(ts.shape + a0.shape), jnp.asarray(True), jnp.asarray(0)
+    lam = jax.vmap(lam_fn)(ts)
+    P = jax.vmap(lambda l_, a_: _uni_stress(l_, a_, p))(lam, a)
+    return P, a, ok, nsteps
+
+
+@eqx.filter_jit
+def _uv_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
+    g0 = jnp.zeros((args[0]["mu"].shape[0], 2))
+    if integrate:
+        gs, ok, nsteps = _diffeqsolve(_uv_field, g0, t0, ts, args, solver, rtol, atol, max_steps)
+    else:
+        gs, ok, nsteps = jnp.zeros(ts.shape + g0.shape), jnp.asarray(True), jnp.asarray(0)
+    l2 = jax.vmap(lambda g, tt: _uv_l2(g, tt, args))(gs, ts)
+    P = jax.vmap(lambda z, g, tt: _uv_stress(z, g, tt, args))(l2, gs, ts)
+    return P, l2, gs, ok, nsteps
 
 
 def homogeneous_uniaxial_response(
     t, lam_fn, mu_inf, Jm_inf, mu, Jm, eta, eps=0.0, phi_fn=None, thickness=None, *,
-    rtol=1e-10, atol=1e-12, t0=0.0, solver=None, max_steps=100_000, return_state=False,
+    rtol=1e-10, atol=1e-12, t0=0.0, solver=None, max_steps=1_000_000, return_state=False,
 ):
     r"""Nominal stress P11(t) (Pa) of stretch-controlled uniaxial tension of an incompressible strip.
 
@@ -544,60 +630,57 @@ def homogeneous_uniaxial_response(
         H_inf = 1 - (lam^2 + 2/lam - 3)/Jm_inf,  H_s = 1 - (lam^2 a_s^-2 + 2 a_s/lam - 3)/Jm_s
 
     Linearised, da/dt = (2 mu_s/eta_s)(lam - a): relaxation time eta_s/(2 mu_s).
+    Default solver: Tsit5, or Kvaerno5 when a unit is stiff on the time span (span over
+    eta_s/(2 mu_s) above 2000); with C^1 stretch histories Kvaerno5 handles eta -> 0 at
+    rtol = 1e-10 here (this ODE has no inner Newton solve).
 
     With a voltage phi(t) across direction 3 (reference thickness ``thickness``, nominal
     field E = phi/thickness) the symmetry lam2 = lam3 is lost and is *handled*: lam3 =
     1/(lam lam2), Cv_s = diag(c1, c2, 1/(c1 c2)) and lam2 solves the lateral equilibrium
     (faces 2 and 3 traction free, Maxwell stress included)::
 
-        s_2 - s_3 + eps E^2 lam3^-2 = 0,   P11 = (s_1 - s_3 + eps E^2 lam3^-2)/lam
+        s_2 - s_3 - eps E^2 lam3^-2 = 0,   P11 = (s_1 - s_3 - eps E^2 lam3^-2)/lam
         s_i = mu_inf l_i^2/H_inf + sum_s mu_s l_i^2/(c_si H_s)
         d ln c_si/dt = 2 mu_s/(eta_s H_s) (l_i^2/c_si - I1e_s/3)
 
-    (an index-1 DAE, integrated like :func:`homogeneous_block_response`).
+    (an index-1 DAE, integrated like :func:`homogeneous_block_response`: ODE in ln c with
+    Newton for lam2 in every evaluation, warm-started at lam^-1/2; default solver Tsit5).
 
     Args:
-      t: output times (s); lam_fn: JAX-traceable stretch history lam(t) (-).
+      t: output times (s); lam_fn: JAX-traceable stretch history lam(t) (-), e.g.
+        ``ramp_hold(lam_max, t_ramp)``.
       mu_inf (Pa), Jm_inf (-); mu (Pa), Jm (-), eta (Pa s): per viscous unit (N >= 0).
       eps (F/m), phi_fn (JAX-traceable, V), thickness (m): optional electrical loading.
-      return_state: also return the internal state (a_s, or (lam2, ln c1, ln c2)).
+      return_state: also return the internal state (a_s (len(t), N), or
+        (lam2 (len(t),), ln c_1,2 (len(t), N, 2))).
     Returns:
       P11(t) as a numpy array (Pa).
     """
     mu, Jm, eta = _units(mu, Jm, eta)
+    n = mu.size
     ts = _times(t, t0)
-    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, mu=mu, Jm=Jm, eta=eta).items()}
-    tsj = jnp.asarray(ts)
+    mup, Jmp, etap = _padded(mu, Jm, eta)
+    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, mu=mup, Jm=Jmp, eta=etap).items()}
+    tsj = _bucket(ts)
+    k = ts.size
+    t0j = jnp.asarray(t0, float)
     what = "homogeneous_uniaxial_response"
+    integrate = bool(ts[-1] > t0)  # N = 0 runs through the same (padded, inert) path: one compilation
     if phi_fn is None:
-        args = (p, lam_fn)
-        a0 = jnp.ones(mu.shape)
-        if mu.size == 0 or ts[-1] == t0:
-            a = jnp.ones((ts.size, mu.size))
-        else:
-            a = _run(_uni_field, a0, t0, ts, args, solver, rtol, atol, max_steps, what)
-        lam = jax.vmap(lam_fn)(tsj)
-        P = np.asarray(jax.vmap(lambda l_, a_: _uni_stress(l_, a_, p))(lam, a))
-        state = np.asarray(a)
+        if solver is None:
+            solver = diffrax.Kvaerno5() if _stiffness(t0, ts[-1], mu, eta) > 2000.0 else diffrax.Tsit5()
+        P, a, ok, nsteps = _uni_solve(t0j, tsj, (p, lam_fn), solver, rtol, atol, max_steps, integrate)
+        state = np.asarray(a)[:k, :n]
+        _check_run(ok, nsteps, max_steps, what, ts, np.asarray(a)[:k])
     else:
         if thickness is None or not thickness > 0:
             raise ValueError(f"{what}: a voltage needs the reference thickness (got thickness = {thickness})")
         p["thickness"] = jnp.asarray(thickness, float)
-        args = (p, lam_fn, phi_fn)
-        g0 = jnp.zeros((mu.size, 2))
-        l2_guess = jnp.asarray(lam_fn(jnp.asarray(t0, float)), float) ** -0.5
-        l2_start = _newton(_uv_resid, l2_guess, g0, jnp.asarray(t0, float), args)
-        if not np.isfinite(float(l2_start)):
-            raise ReferenceSolveError(f"{what}: no lateral equilibrium at t0 = {t0}")
-        if mu.size == 0 or ts[-1] == t0:
-            # purely elastic: solve each time from the symmetric guess lam^-1/2
-            zg = jax.vmap(lambda tt: jnp.asarray(lam_fn(tt), float) ** -0.5)(tsj)
-            gs = jnp.zeros((ts.size, mu.size, 2))
-        else:
-            zg, gs = _run(_uv_field, (l2_start, g0), t0, ts, args, solver, rtol, atol, max_steps, what)
-        l2 = jax.vmap(lambda z, g, tt: _newton(_uv_resid, z, g, tt, args))(zg, gs, tsj)
-        P = np.asarray(jax.vmap(lambda z, g, tt: _uv_stress(z, g, tt, args))(l2, gs, tsj))
-        state = (np.asarray(l2), np.asarray(gs))
+        solver = solver or diffrax.Tsit5()
+        P, l2, gs, ok, nsteps = _uv_solve(t0j, tsj, (p, lam_fn, phi_fn), solver, rtol, atol, max_steps, integrate)
+        state = (np.asarray(l2)[:k], np.asarray(gs)[:k, :n])
+        _check_run(ok, nsteps, max_steps, what, ts, np.asarray(gs)[:k])
+    P = np.asarray(P)[:k]
     if not np.all(np.isfinite(P)):
         k = int(np.argmin(np.isfinite(P)))
         raise ReferenceSolveError(f"{what}: inadmissible state at t = {ts[k]} s (Gent limit or no lateral equilibrium)")

@@ -9,7 +9,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
+import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from . import constraints as cs
 from . import integrate as it
@@ -71,15 +73,17 @@ class Problem:
     output_fn: Callable
     params: dict
     extras: dict = dataclasses.field(default_factory=dict)
+    rho_inf: float = 0.8
 
-    def simulate(self, t_end, dt, rho_inf=0.8, newton=it.NewtonOptions(), solver=None) -> it.Solution:
-        """Run from rest to t_end with step dt (s); returns the Solution (not checked)."""
+    def simulate(self, t_end, dt, rho_inf=None, newton=it.NewtonOptions(), solver=None) -> it.Solution:
+        """Run from rest to t_end with step dt (s); returns the Solution (not checked).
+        rho_inf defaults to the scenario's (0.8, the paper's; 0 for quasi-static tests)."""
         return it.simulate(
             self.model,
             self.loading,
             it.time_grid(t_end, dt),
             self.output_fn,
-            it.GeneralizedAlpha(rho_inf),
+            it.GeneralizedAlpha(self.rho_inf if rho_inf is None else rho_inf),
             newton,
             solver,
         )
@@ -116,7 +120,7 @@ def block(
     shape=(1, 1, 1),
     material: Material | None = None,
     t_ramp: float = 1.0,
-    gauss_order: int = 2,
+    gauss_order: int = 3,
     damping: float = 0.0,
     voltage=None,
 ) -> Problem:
@@ -125,8 +129,8 @@ def block(
     on z = L (or any ``voltage`` history t -> V).
 
     Outputs: lateral_stretch (x-extent / L), thickness_stretch (z-extent / L), voltage.
-    The homogeneous deformation is represented exactly by any mesh; the default
-    2 x 2 x 2 Gauss rule integrates it exactly.
+    The homogeneous deformation is represented exactly by any mesh. The default Gauss
+    rule is 3 x 3 x 3: with 2 x 2 x 2 the ANCF element has spurious zero-energy modes.
     """
     for name, v in (("L", L), ("t_ramp", t_ramp)):
         if isinstance(v, (int, float)) and not v > 0:
@@ -163,3 +167,236 @@ def block(
         eta=material.eta,
     )
     return Problem("block", model, it.Loading(voltages=(history,)), out, params, {"mesh": mesh})
+
+
+class _TubeOutputs:
+    """x_P, v_P (axial displacement and velocity of node P), voltage and nominal field phi/h."""
+
+    def __init__(self, node: int, h: float):
+        self.node = int(node)
+        self.h = float(h)
+
+    def __hash__(self):
+        return hash(("tube", self.node, self.h))
+
+    def __eq__(self, other):
+        return isinstance(other, _TubeOutputs) and (other.node, other.h) == (self.node, self.h)
+
+    def __call__(self, model, loading, state):
+        i = 12 * self.node
+        phi = loading.phi(state.t)[0]
+        return {
+            "x_P": state.q[i] - model.q0[i],
+            "v_P": state.v[i],
+            "voltage": phi,
+            "field": phi / self.h,
+        }
+
+
+def rolled(
+    model: str | Material = "IV",
+    freq: float = 30.0,
+    phi_max: float = 50e3,
+    h: float = 2e-3,
+    r: float = 2e-3,
+    L: float = 8e-3,
+    shape=(12, 20, 4),
+    gauss_order: int = 3,
+    damping: float = 0.0,
+    point: str = "P",
+    voltage=None,
+) -> Problem:
+    """Rolled (tubular) DEA of paper Sec. 6.
+
+    Hollow cylinder along x in [-L, 0] (m), inner radius r, wall h; voltage across the
+    wall (radial field), Eq. (42) sine with frequency ``freq`` (Hz) and peak ``phi_max``
+    (V) unless ``voltage`` (t -> V) is given. Top face x = 0: u2 = u3 = 0; bottom face
+    x = -L clamped. Output x_P, v_P: axial displacement (m) and velocity (m/s) of the
+    node set ``point`` ("P": top face, inner edge; "P_outer": outer edge).
+    ``model``: a Table 2 name ("I".."IV", "hyperelastic") or a Material.
+    """
+    from .mesh import rolled_tube_mesh
+
+    material = rolled_material(model) if isinstance(model, str) else model
+    mesh = rolled_tube_mesh(h, r, L, shape=shape)
+    c = cs.Constraints(mesh.n_dofs)
+    c = c.fix(cs.face_dofs(mesh.nodes("top"), 0, [1, 2]))
+    c = c.fix(cs.face_dofs(mesh.nodes("bottom"), 0, [0, 1, 2]))
+    m = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    nodes = mesh.nodes(point)
+    if len(nodes) != 1:
+        raise ValueError(f"output point set {point!r} must hold one node, it holds {len(nodes)}")
+    history = loads.Sine(phi_max, freq) if voltage is None else voltage
+    hh = float(h) if isinstance(h, (int, float)) else 1.0
+    params = dict(
+        scenario="rolled", model=model if isinstance(model, str) else "custom", freq=freq, phi_max=phi_max,
+        h=h, r=r, L=L, mesh=list(shape), gauss_order=gauss_order, damping=damping, point=point,
+        **_material_params(material),
+    )
+    return Problem("rolled", m, it.Loading(voltages=(history,)), _TubeOutputs(nodes[0], hh), params,
+                   {"mesh": mesh, "P": int(nodes[0])})
+
+
+class _TwistOutputs:
+    """twist_angle: least-squares rotation (rad) about x of the x = L face's nodes relative to
+    their reference positions (positive counter-clockwise seen from +x); voltage."""
+
+    def __init__(self, nodes):
+        self.nodes = tuple(int(i) for i in nodes)
+
+    def __hash__(self):
+        return hash(("twist", self.nodes))
+
+    def __eq__(self, other):
+        return isinstance(other, _TwistOutputs) and other.nodes == self.nodes
+
+    def __call__(self, model, loading, state):
+        idx = 12 * jnp.asarray(self.nodes)
+        Y = jnp.stack([model.q0[idx + 1], model.q0[idx + 2]], axis=1)
+        y = jnp.stack([state.q[idx + 1], state.q[idx + 2]], axis=1)
+        Y = Y - Y.mean(0)
+        y = y - y.mean(0)
+        angle = jnp.arctan2(jnp.sum(Y[:, 0] * y[:, 1] - Y[:, 1] * y[:, 0]), jnp.sum(Y[:, 0] * y[:, 0] + Y[:, 1] * y[:, 1]))
+        return {"twist_angle": angle, "voltage": loading.phi(state.t)[0],
+                "x_end": jnp.mean(state.q[idx] - model.q0[idx])}
+
+
+def torsional_material(viscous: bool = False, **overrides) -> Material:
+    """Paper Sec. 5: rho = 1.5 g/cm^3, eps = 3.4e-11, mu_inf = 12 kPa, K_inf = 5 GPa, Jm_inf = 15;
+    viscous case adds mu_1 = 80 kPa, K_1 = 7.5 GPa, Jm_1 = 5, eta_1 = 400 Pa s."""
+    p = dict(mu_inf=12e3, K_inf=5e9, Jm_inf=15.0, eps=3.4e-11, rho=1500.0)
+    if viscous:
+        p.update(mu=[80e3], K=[7.5e9], Jm=[5.0], eta=[400.0])
+    p.update(overrides)
+    return Material(**p)
+
+
+def torsional(
+    phibar_max: float = 0.5,
+    t_ramp: float = 1.0,
+    viscous: bool = False,
+    material: Material | None = None,
+    thickness: float = 1e-3,
+    length_ratio: float = 60.0,
+    width_ratio: float = 10.0,
+    turns: float = 1.0,
+    shape=(48, 8, 2),
+    gauss_order: int = 3,
+    damping: float = 0.0,
+) -> Problem:
+    """Torsional DEA of paper Sec. 5: pre-twisted strip (length 60 h, width 10 h, one turn).
+
+    Voltage phi = phibar h sqrt(mu_inf/eps) on the top surface, 0 on the bottom, phibar
+    ramped linearly from 0 to ``phibar_max`` over ``t_ramp`` (s). The x = 0 face stays
+    planar (u1 = 0) and does not rotate (its mid-thickness line keeps u3 = 0, its centre
+    u2 = 0); the x = L face stays planar (common axial position, no tilt) and is free to
+    translate and rotate. Outputs: twist_angle (rad) of the x = L face, voltage, x_end.
+    """
+    from .mesh import twisted_strip_mesh
+
+    n = tuple(int(s) for s in shape)
+    if n[1] % 2 or n[2] % 2:
+        raise ValueError(f"torsional: width and thickness element counts must be even (centre node needed), got {shape}")
+    material = torsional_material(viscous) if material is None else material
+    mesh = twisted_strip_mesh(length_ratio * thickness, width_ratio * thickness, thickness, turns, shape=n)
+    X = np.asarray(mesh.X)
+    x0 = mesh.nodes("x0")
+    x1 = mesh.nodes("x1")
+    mid = x0[np.abs(X[x0, 2]) < 1e-9 * thickness]
+    centre = mid[np.abs(X[mid, 1]) < 1e-9 * thickness]
+    c = cs.Constraints(mesh.n_dofs)
+    c = c.fix(cs.face_dofs(x0, 0, [0]))
+    c = c.fix(np.concatenate([cs.dof_index(mid, 0, 2), cs.dof_index(mid, 2, 2)]))  # mid-line: z and dz/dY
+    c = c.fix(cs.dof_index(centre, 0, 1))
+    c = c.fix(np.concatenate([cs.dof_index(x1, 2, 0), cs.dof_index(x1, 3, 0)]))  # x = L face: no tilt
+    c = c.tie(cs.dof_index(x1, 0, 0))  # x = L face: common axial position
+    m = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    scale = thickness * jnp.sqrt(material.mu_inf / material.eps)
+    history = loads.Scaled(loads.PiecewiseLinear([0.0, t_ramp], [0.0, phibar_max]), scale)
+    params = dict(scenario="torsional", phibar_max=phibar_max, t_ramp=t_ramp, thickness=thickness,
+                  length=length_ratio * thickness, width=width_ratio * thickness, turns=turns, mesh=list(n),
+                  gauss_order=gauss_order, damping=damping, **_material_params(material))
+    return Problem("torsional", m, it.Loading(voltages=(history,)), _TwistOutputs(x1), params,
+                   {"mesh": mesh, "phibar_scale": scale})
+
+
+def _material_params(material: Material) -> dict:
+    return dict(mu_inf=material.mu_inf, K_inf=material.K_inf, Jm_inf=material.Jm_inf, eps=material.eps,
+                rho=material.rho, mu=material.mu, K=material.K, Jm=material.Jm, eta=material.eta)
+
+
+class _UniaxialOutputs:
+    """stretch (-), nominal stress P11 (Pa) = axial reaction on the moving face / (ly lz),
+    voltage (V) and thickness stretch (-)."""
+
+    def __init__(self, face, top, lx, area, lz):
+        self.face = tuple(int(i) for i in face)
+        self.top = tuple(int(i) for i in top)
+        self.lx, self.area, self.lz = float(lx), float(area), float(lz)
+
+    def _key(self):
+        return (self.face, self.top, self.lx, self.area, self.lz)
+
+    def __hash__(self):
+        return hash(("uniaxial",) + self._key())
+
+    def __eq__(self, other):
+        return isinstance(other, _UniaxialOutputs) and other._key() == self._key()
+
+    def __call__(self, model, loading, state):
+        phi = loading.phi(state.t) if loading.voltages else jnp.zeros(model.field_dirs.shape[0])
+        E = mdl.nominal_field(model, phi)
+        R = (mdl.mass_apply(model, state.qdd + model.damping * state.v) + mdl.internal_force_at(model, state.q, E, state.Cv)
+             - mdl.gravity_force(model))
+        idx = 12 * jnp.asarray(self.face)
+        top = 12 * jnp.asarray(self.top) + 2
+        return {
+            "stretch": jnp.mean(state.q[idx]) / self.lx,
+            "stress": jnp.sum(R[idx]) / self.area,
+            "voltage": phi[0] if phi.shape[0] else jnp.asarray(0.0),
+            "thickness_stretch": jnp.mean(state.q[top]) / self.lz,
+        }
+
+
+def uniaxial(
+    stretch,
+    material: Material,
+    voltage=None,
+    lx: float = 1e-3,
+    ly: float = 1e-3,
+    lz: float = 1e-3,
+    shape=(1, 1, 1),
+    gauss_order: int = 3,
+    damping: float = 0.0,
+) -> Problem:
+    """Stretch-controlled uniaxial tension of a film (a material test).
+
+    Block [0, lx] x [0, ly] x [0, lz] (m) with symmetry planes x = 0, y = 0, z = 0; the
+    face x = lx moves rigidly (planar) so that its stretch follows ``stretch`` (t -> -);
+    faces y = ly and z = lz are traction free. Optional ``voltage`` (t -> V) across the
+    thickness z (electrodes on z = 0 and z = lz). Outputs: stretch, nominal stress
+    P11 (Pa, axial reaction force over the reference cross-section ly lz), voltage,
+    thickness_stretch.
+    """
+    mesh = block_mesh(lx, ly, lz, shape=shape)
+    c = cs.Constraints(mesh.n_dofs)
+    for face, axis in (("x0", 0), ("y0", 1), ("z0", 2)):
+        c = c.fix(cs.face_dofs(mesh.nodes(face), axis, [axis]))
+    x1 = mesh.nodes("x1")
+    c = c.fix(np.concatenate([cs.dof_index(x1, 2, 0), cs.dof_index(x1, 3, 0)]))  # face stays normal to x
+    c = c.prescribe(cs.dof_index(x1, 0, 0), lx)  # x = lx + u(t) lx with u = stretch - 1
+    model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    loading = it.Loading(voltages=(voltage,) if voltage is not None else (), motions=(_MinusOne(stretch),))
+    params = dict(scenario="uniaxial", lx=lx, ly=ly, lz=lz, mesh=list(shape), gauss_order=gauss_order,
+                  damping=damping, **_material_params(material))
+    return Problem("uniaxial", model, loading, _UniaxialOutputs(x1, mesh.nodes("z1"), lx, ly * lz, lz), params,
+                   {"mesh": mesh}, rho_inf=0.0)
+
+
+class _MinusOne(eqx.Module):
+    """u(t) = stretch(t) - 1."""
+
+    stretch: eqx.Module
+
+    def __call__(self, t):
+        return self.stretch(t) - 1.0

@@ -40,7 +40,7 @@ class Check:
         return bool(np.isfinite(self.error) and self.error <= self.tolerance)
 
 
-def _block_runs(phis, shape, t_end, dt, material, gauss_order=2, t_ramp=1.0):
+def _block_runs(phis, shape, t_end, dt, material, gauss_order=3, t_ramp=1.0):
     """Lateral stretch of the ANCF block for several peak voltages (vmapped): (n_phi, n+1)."""
     prob = scenarios.block(phi_max=phis[0], shape=shape, material=material, t_ramp=t_ramp, gauss_order=gauss_order)
     times = it.time_grid(t_end, dt)
@@ -132,8 +132,7 @@ def _lowest_mode_velocity(model, amplitude):
     K = np.asarray(mdl.assemble_dense(model, Ke))
     M = np.asarray(mdl.assemble_dense(model, mdl.mass_elements(model)))
     w2, modes = eigh(K, M)
-    v = np.zeros(model.q0.shape[0])
-    v[model.structure.free] = modes[:, 0]
+    v = np.asarray(mdl.expand(model, jnp.asarray(modes[:, 0])))
     pos = v.reshape(-1, 4, 3)[:, 0, :]
     return jnp.asarray(v * amplitude / np.max(np.abs(pos))), float(np.sqrt(w2[0]))
 

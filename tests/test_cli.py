@@ -1,0 +1,81 @@
+"""Command-line contract of issue 2: `dejax run block ...` writes /time and
+/outputs/lateral_stretch with parameters as attributes; bad input exits 2 and
+never leaves a file behind."""
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from dejax import cli
+
+
+def test_run_block_writes_h5(tmp_path, capsys):
+    out = tmp_path / "block.h5"
+    rc = cli.main(["run", "block", "--phi-max", "12e3", "--t-end", "0.5", "--dt", "5e-3", "--out", str(out), "--quiet"])
+    assert rc == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "block" in line and "Newton" in line and str(out) in line
+    with h5py.File(out) as f:
+        t = f["time"][()]
+        lam = f["outputs/lateral_stretch"][()]
+        assert t.shape == lam.shape == (101,)
+        assert t[0] == 0.0 and abs(t[-1] - 0.5) < 1e-12
+        assert lam[0] == pytest.approx(1.0, abs=1e-12)
+        assert np.all(np.isfinite(lam)) and lam[-1] > 1.0
+        assert f.attrs["phi_max"] == 12e3
+        assert f.attrs["mu_inf"] == 67e3
+        assert f.attrs["scenario"] == "block"
+    assert [p.name for p in tmp_path.iterdir()] == ["block.h5"]  # no temporary left
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--phi-max", "-1"], "--phi-max must be >= 0"),
+        (["--t-end", "abc"], "--t-end must be a number"),
+        (["--mesh", "2x2"], "mesh must look like"),
+        (["--dt", "0"], "--dt must be > 0"),
+        (["--rho-inf", "1.5"], "--rho-inf must lie in [0, 1]"),
+    ],
+)
+def test_bad_arguments_exit_2(tmp_path, capsys, args, message):
+    out = tmp_path / "x.h5"
+    with pytest.raises(SystemExit) as e:
+        cli.main(["run", "block", "--out", str(out), *args])
+    assert e.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_unwritable_path_exit_2(tmp_path, capsys):
+    out = tmp_path / "missing-folder" / "x.h5"
+    rc = cli.main(["run", "block", "--t-end", "0.1", "--out", str(out)])
+    assert rc == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert not out.parent.exists()
+
+
+def test_directory_as_output_exit_2(tmp_path, capsys):
+    rc = cli.main(["run", "block", "--t-end", "0.1", "--out", str(tmp_path)])
+    assert rc == 2
+    assert "is a directory" in capsys.readouterr().err
+
+
+def test_failed_run_reports_time_and_writes_nothing(tmp_path, capsys):
+    """Far above pull-in the block fails; the error names what failed and when."""
+    out = tmp_path / "fail.h5"
+    rc = cli.main(["run", "block", "--hyperelastic", "--phi-max", "200e3", "--t-end", "1", "--dt", "1e-2",
+                   "--out", str(out), "--quiet"])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert "simulation failed at t = " in err
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_console_script_help():
+    r = subprocess.run([sys.executable, "-m", "dejax.cli", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "run" in r.stdout and "verify" in r.stdout
