@@ -6,6 +6,7 @@ arguments or an unwritable output path (nothing is written).
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import time
 
@@ -87,9 +88,45 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--eta", type=_positive("--eta"), default=None, help="override eta_1 (Pa s)")
     _common_solver_args(b)
 
+    r = rsub.add_parser("rolled", help="rolled (tubular) DEA under the Eq. (42) sine voltage (paper Sec. 6)")
+    r.add_argument("--model", default="IV", choices=("I", "II", "III", "IV", "hyperelastic"), help="Table 2 material")
+    r.add_argument("--freq", type=_positive("--freq"), default=30.0, help="voltage frequency f (Hz)")
+    r.add_argument("--phi-max", type=_nonneg("--phi-max"), default=50e3, help="peak voltage phi_m (V)")
+    r.add_argument("--cycles", type=_positive("--cycles"), default=10.0, help="number of voltage cycles")
+    r.add_argument("--mesh", type=_mesh_shape, default=(12, 20, 4), help="n_l x n_s x n_r elements")
+    r.add_argument("--h", type=_positive("--h"), default=2e-3, help="wall thickness (m)")
+    r.add_argument("--r", type=_positive("--r"), default=2e-3, help="inner radius (m)")
+    r.add_argument("--L", type=_positive("--L"), default=8e-3, help="length (m)")
+    r.add_argument("--point", default="P", choices=("P", "P_outer"), help="output point on the top face")
+    r.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None, help="override mu_inf (Pa)")
+    r.add_argument("--mu", default=None, help="override the viscous mu_s, comma-separated (Pa)")
+    r.add_argument("--eta", default=None, help="override the viscous eta_s, comma-separated (Pa s)")
+    r.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
+    _common_solver_args(r)
+
+    t = rsub.add_parser("torsional", help="twisted torsional strip, phibar ramp (paper Sec. 5)")
+    t.add_argument("--phibar-max", type=_nonneg("--phibar-max"), default=0.5, help="final dimensionless voltage")
+    t.add_argument("--t-ramp", type=_positive("--t-ramp"), default=1.0, help="ramp duration (s)")
+    t.add_argument("--t-end", type=_positive("--t-end"), default=None, help="end time (s), default t_ramp")
+    t.add_argument("--viscous", action="store_true", help="add the paper's viscous unit")
+    t.add_argument("--mesh", type=_mesh_shape, default=(48, 8, 2), help="length x width x thickness elements")
+    t.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
+    _common_solver_args(t)
+
     v = sub.add_parser("verify", help="run the verification cases against independent references")
     v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
     v.add_argument("--json", default=None, help="also write the table as JSON to this path")
+
+    from . import bench
+
+    bench.register(sub)
+    for module in ("fitting.fit", "fitting.sensitivity", "fitting.diagnose", "dejax.plot", "dejax.sweep"):
+        try:
+            mod = importlib.import_module(module)
+        except ImportError:  # an optional verb whose module is not installed
+            continue
+        if hasattr(mod, "register"):
+            mod.register(sub)
     return parser
 
 
@@ -112,22 +149,32 @@ def _progress(quiet):
     return report
 
 
-def _run_problem(problem, t_end, dt, args, summary_outputs):
+def _floats(text, name):
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+
+
+def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     import numpy as np
 
     from . import integrate as it
+    from . import linsolve
     from .results import write_h5
 
     times = it.time_grid(t_end, dt)
-    sol, _, compile_s, run_s = it.run_chunked(
+    sol, snaps, compile_s, run_s = it.run_chunked(
         problem.model,
         problem.loading,
         times,
         problem.output_fn,
         it.GeneralizedAlpha(args.rho_inf),
         it.NewtonOptions(tol=args.newton_tol),
-        chunk=min(1000, len(times) - 1),
+        linsolve.choose_solver(problem.model.structure, solver),
+        chunk=min(500, len(times) - 1),
         progress=_progress(args.quiet),
+        snapshot_times=(float(times[-1]),),
     )
     iters = np.asarray(sol.iterations)
     if not sol.ok:
@@ -146,7 +193,9 @@ def _run_problem(problem, t_end, dt, args, summary_outputs):
         newton_mean=float(iters.mean()),
         newton_max=int(iters.max()),
     )
-    write_h5(args.out, sol.time, {k: np.asarray(v) for k, v in sol.outputs.items()}, problem.params, iters, attrs=attrs)
+    snapshots = {k: {"t": float(st.t), "q": np.asarray(st.q), "q0": np.asarray(problem.model.q0)} for k, st in snaps.items()}
+    write_h5(args.out, sol.time, {k: np.asarray(v) for k, v in sol.outputs.items()}, problem.params, iters,
+             snapshots=snapshots, attrs=attrs)
     finals = ", ".join(f"{k} = {float(np.asarray(sol.outputs[k])[-1]):.6g}" for k in summary_outputs)
     print(
         f"{problem.name}: {n} steps to t = {t_end:g} s, compile {compile_s:.1f} s, run {run_s:.2f} s "
@@ -185,6 +234,31 @@ def _cmd_run(args):
             damping=args.damping,
         )
         return _run_problem(problem, args.t_end, args.dt or 1e-3, args, ["lateral_stretch"])
+    if args.scenario == "rolled":
+        from . import scenarios
+
+        over = {}
+        if args.mu_inf is not None:
+            over["mu_inf"] = args.mu_inf
+        if args.mu is not None:
+            over["mu"] = _floats(args.mu, "--mu")
+        if args.eta is not None:
+            over["eta"] = _floats(args.eta, "--eta")
+        n = len(over.get("mu", scenarios.TABLE2[args.model][1]))
+        if "mu" in over or "eta" in over:
+            over.setdefault("K", [7.5e9] * n)
+            over.setdefault("Jm", [5.0] * n)
+        material = scenarios.rolled_material(args.model, **over)
+        problem = scenarios.rolled(material, args.freq, args.phi_max, h=args.h, r=args.r, L=args.L, shape=args.mesh,
+                                   gauss_order=args.gauss or 3, damping=args.damping, point=args.point)
+        problem.params["model"] = args.model
+        return _run_problem(problem, args.cycles / args.freq, args.dt or 1e-4, args, ["x_P"], args.solver)
+    if args.scenario == "torsional":
+        from . import scenarios
+
+        problem = scenarios.torsional(args.phibar_max, args.t_ramp, viscous=args.viscous, shape=args.mesh,
+                                      gauss_order=args.gauss or 3, damping=args.damping)
+        return _run_problem(problem, args.t_end or args.t_ramp, args.dt or 1e-2, args, ["twist_angle"], args.solver)
     raise AssertionError(args.scenario)
 
 
@@ -203,6 +277,8 @@ def main(argv=None) -> int:
             return _cmd_run(args)
         if args.command == "verify":
             return _cmd_verify(args)
+        if hasattr(args, "func"):
+            return int(args.func(args) or 0)
     except ValueError as e:  # bad parameter values found while building the problem
         print(f"dejax: error: {e}", file=sys.stderr)
         return 2

@@ -253,7 +253,7 @@ def _make_newton(scheme: GeneralizedAlpha, opts: NewtonOptions, solver):
                 return _residual(model, scheme, ctx, z)[0], fac
 
             R, fac = jax.lax.cond(need, refactor, keep, z)
-            dz = _backtrack(model, ctx, z, solver.solve_factored(fac, -R))
+            dz = _backtrack(model, ctx, z, solver.solve_factored(model, fac, -R))
             e = jnp.max(jnp.abs(dz) / scale)
             ok = jnp.all(jnp.isfinite(dz)) & jnp.isfinite(e)
             # a stale factorization that diverges (or yields non-finite values) is not
@@ -327,7 +327,7 @@ def _zero_tangent(x):
 
 def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), solver=None):
     """Return ``step(model, loading, state, t1, fac, valid) -> (state1, iterations,
-    factorizations, status, fac1)``."""
+    factorizations, status, fac1)``. ``solver``: a linsolve solver (default DenseSolver)."""
     solver = DenseSolver() if solver is None else solver
     newton = _make_newton(scheme, opts, solver)
 

@@ -46,7 +46,10 @@ class Material(eqx.Module):
       eps: permittivity (F/m).
       rho: mass density (kg/m^3).
       mu, K, Jm, eta: per viscous unit shear modulus (Pa), bulk modulus (Pa),
-        Gent limit (-), viscosity (Pa s); relaxation time tau = eta / mu.
+        Gent limit (-), viscosity (Pa s); the small-strain relaxation time of a unit
+        under this flow rule is eta / (2 mu).
+      eps_a: electrostriction coefficient (-), default 0 (the paper's model): the
+        permittivity is eps (1 + eps_a (I1bar - 3)), stretch dependent.
     """
 
     mu_inf: jax.Array
@@ -58,8 +61,9 @@ class Material(eqx.Module):
     K: jax.Array
     Jm: jax.Array
     eta: jax.Array
+    eps_a: jax.Array
 
-    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=()):
+    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=(), eps_a=0.0):
         self.mu_inf = jnp.asarray(mu_inf, dtype=float)
         self.K_inf = jnp.asarray(K_inf, dtype=float)
         self.Jm_inf = jnp.asarray(Jm_inf, dtype=float)
@@ -76,6 +80,7 @@ class Material(eqx.Module):
                 )
             arrs.append(a)
         self.mu, self.K, self.Jm, self.eta = arrs
+        self.eps_a = jnp.asarray(eps_a, dtype=float)
 
     @property
     def n_units(self) -> int:
@@ -148,11 +153,15 @@ def gent_margin(I1bar, Jm):
 
 
 def equilibrium_energy(F, E, mat: Material):
-    """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3."""
+    """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3.
+
+    With ``mat.eps_a != 0`` the permittivity depends on stretch (electrostriction, an
+    extension beyond the paper used by the sim-to-real diagnosis)."""
     C = F.T @ F
     J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
-    elec = -0.5 * mat.eps * J * (E @ inv3(C) @ E)
+    eps = mat.eps * (1.0 + mat.eps_a * (I1bar - 3.0))
+    elec = -0.5 * eps * J * (E @ inv3(C) @ E)
     return gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + 0.5 * mat.K_inf * (J - 1.0) ** 2 + elec
 
 

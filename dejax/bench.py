@@ -1,0 +1,175 @@
+"""``dejax bench``: a fixed set of timing cases, printed as a table and written as JSON.
+
+Cases (issue 6):
+  B1  block, one element, Eq. (41) to 3 s
+  R1  rolled tube 4 x 8 x 1, Model IV, ten cycles at 30 Hz, 50 kV
+  R2  rolled tube 12 x 20 x 4, same loading (the paper's run)
+  G1  forward-mode derivative of R1's mean x_P over the last cycle with respect to
+      Model IV's nine parameters and h, L, r
+  S1  R1's loading at five mesh sizes from 4 x 8 x 1 to 12 x 20 x 4: the exponent of
+      run time per step against coordinates
+
+``--max-steps N`` runs at most N steps of a case and reports the projected full-run
+time (rate x steps), marked "projected" in the table; without it every case runs in
+full. Times are wall-clock seconds on this machine after compilation; "compile" is the
+XLA compile time of the case's program.
+"""
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import integrate as it
+from . import linsolve, loads, scenarios
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _run_case(name, problem, t_end, dt, max_steps, solver="auto", newton=it.NewtonOptions()):
+    times = it.time_grid(t_end, dt)
+    n_full = times.size - 1
+    n = n_full if max_steps is None else min(n_full, int(max_steps))
+    solv = linsolve.choose_solver(problem.model.structure, solver)
+    sol, _, compile_s, run_s = it.run_chunked(
+        problem.model, problem.loading, times[: n + 1], problem.output_fn, it.GeneralizedAlpha(problem.rho_inf),
+        newton, solv, chunk=min(250, n),
+    )
+    iters = np.asarray(sol.iterations)
+    facs = np.asarray(sol.factorizations)
+    rate = n / run_s if run_s > 0 else float("nan")
+    return dict(
+        case=name,
+        coordinates=int(problem.model.structure.n_dofs),
+        unknowns=int(problem.model.structure.n_free),
+        solver=type(solv).__name__,
+        steps=n_full,
+        steps_run=n,
+        compile_s=compile_s,
+        run_s=run_s if n == n_full else n_full / rate,
+        projected=n < n_full,
+        steps_per_s=rate,
+        newton_mean=float(iters.mean()),
+        newton_max=int(iters.max()),
+        factorizations=int(facs.sum()) if n == n_full else int(round(facs.sum() * n_full / n)),
+        peak_mb=_peak_rss_mb(),
+        status=int(sol.status),
+    )
+
+
+def case_B1(max_steps=None, dt=1e-3):
+    return _run_case("B1 block 1 el, 3 s", scenarios.block(phi_max=12e3), 3.0, dt, max_steps)
+
+
+def case_R(name, shape, max_steps=None, dt=1e-4, cycles=10, solver="auto"):
+    p = scenarios.rolled("IV", 30.0, 50e3, shape=shape)
+    return _run_case(f"{name} tube {'x'.join(map(str, shape))}, IV, {cycles} cycles", p, cycles / 30.0, dt, max_steps,
+                     solver)
+
+
+def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1)):
+    """jacfwd of the last-cycle mean x_P w.r.t. 12 parameters (9 material + h, L, r)."""
+    t_end = cycles / 30.0
+    times = it.time_grid(t_end, dt)
+    n_full = times.size - 1
+    n = n_full if max_steps is None else min(n_full, int(max_steps))
+    times = times[: n + 1]
+    base = scenarios.rolled_material("IV")
+    per = int(round(1.0 / 30.0 / dt))
+
+    def mean_last_cycle(theta):
+        mat = scenarios.rolled_material(
+            "IV", mu_inf=theta[0], mu=theta[1:5], eta=theta[5:9]
+        )
+        p = scenarios.rolled(mat, 30.0, 50e3, h=theta[9], L=theta[10], r=theta[11], shape=shape)
+        sol = it.simulate(p.model, p.loading, times, p.output_fn)
+        x = sol.outputs["x_P"][-min(per, n):]
+        return jnp.mean(x)
+
+    theta0 = jnp.concatenate([base.mu_inf[None], base.mu, base.eta, jnp.array([2e-3, 8e-3, 2e-3])])
+    f = jax.jit(mean_last_cycle)
+    g = jax.jit(jax.jacfwd(mean_last_cycle))
+    tic = time.perf_counter()
+    lowered = g.lower(theta0).compile()
+    compile_s = time.perf_counter() - tic
+    tic = time.perf_counter()
+    jax.block_until_ready(lowered(theta0))
+    grad_s = time.perf_counter() - tic
+    fc = f.lower(theta0).compile()
+    tic = time.perf_counter()
+    jax.block_until_ready(fc(theta0))
+    fwd_s = time.perf_counter() - tic
+    scale = n_full / n
+    return dict(case=f"G1 jacfwd 12 params, tube {'x'.join(map(str, shape))}", coordinates=None, unknowns=None,
+                solver="DenseSolver", steps=n_full, steps_run=n, compile_s=compile_s, run_s=grad_s * scale,
+                projected=n < n_full, steps_per_s=n / grad_s, newton_mean=float("nan"), newton_max=0,
+                factorizations=0, peak_mb=_peak_rss_mb(), status=0, ratio_to_forward=grad_s / fwd_s)
+
+
+S1_SHAPES = ((4, 8, 1), (6, 10, 2), (8, 12, 2), (10, 16, 3), (12, 20, 4))
+
+
+def case_S1(max_steps=50, dt=1e-4):
+    rows = [case_R(f"S1", shape, max_steps=max_steps, dt=dt) for shape in S1_SHAPES]
+    n = np.array([r["coordinates"] for r in rows], float)
+    per_step = np.array([1.0 / r["steps_per_s"] for r in rows])
+    slope = float(np.polyfit(np.log(n), np.log(per_step), 1)[0])
+    return rows, slope
+
+
+def format_table(rows) -> str:
+    head = f"{'case':<34} {'coords':>7} {'steps':>6} {'compile s':>9} {'run s':>10} {'steps/s':>8} {'Newton':>11} {'fact.':>6} {'peak MB':>8}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        run = f"{r['run_s']:.2f}" + ("*" if r["projected"] else "")
+        newton = f"{r['newton_mean']:.2f}/{r['newton_max']}" if np.isfinite(r["newton_mean"]) else "-"
+        coords = str(r["coordinates"]) if r["coordinates"] else "-"
+        lines.append(f"{r['case']:<34} {coords:>7} {r['steps']:>6} {r['compile_s']:>9.1f} {run:>10} "
+                     f"{r['steps_per_s']:>8.1f} {newton:>11} {r['factorizations']:>6} {r['peak_mb']:>8.0f}")
+    lines.append("* projected from the steps run (rate x steps); Newton = iterations per step mean/max")
+    return "\n".join(lines)
+
+
+def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.json", dt=1e-4) -> int:
+    rows, extra = [], {}
+    for c in cases:
+        sys.stderr.write(f"running {c} ...\n")
+        if c == "B1":
+            rows.append(case_B1(max_steps))
+        elif c == "R1":
+            rows.append(case_R("R1", (4, 8, 1), max_steps, dt))
+        elif c == "R2":
+            rows.append(case_R("R2", (12, 20, 4), max_steps, dt))
+        elif c == "G1":
+            rows.append(case_G1(max_steps, dt))
+            extra["G1_over_forward"] = rows[-1]["ratio_to_forward"]
+        elif c == "S1":
+            srows, slope = case_S1(max_steps or 50, dt)
+            rows += srows
+            extra["S1_exponent"] = slope
+        else:
+            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1")
+    print(format_table(rows))
+    for k, v in extra.items():
+        print(f"{k}: {v:.3f}")
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump({"rows": rows, **extra, "device": str(jax.devices()[0])}, f, indent=2, default=float)
+    return 0
+
+
+def register(sub):
+    p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1), table + JSON")
+    p.add_argument("--cases", default="B1,R1,R2,G1,S1", help="comma-separated subset of B1,R1,R2,G1,S1")
+    p.add_argument("--max-steps", type=int, default=None, help="run at most N steps per case and project")
+    p.add_argument("--dt", type=float, default=1e-4, help="time step of the tube cases (s)")
+    p.add_argument("--json", default="bench.json", help="where to write the JSON table")
+    p.set_defaults(func=lambda a: main(tuple(c.strip() for c in a.cases.split(",") if c.strip()), a.max_steps,
+                                       a.json, a.dt))
