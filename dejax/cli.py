@@ -120,7 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     from . import bench
 
     bench.register(sub)
-    for module in ("fitting.fit", "fitting.sensitivity", "fitting.diagnose", "dejax.plot", "dejax.sweep"):
+    for module in ("fitting.experiment", "fitting.sensitivity", "fitting.diagnose", "dejax.plot", "dejax.sweep"):
         try:
             mod = importlib.import_module(module)
         except ImportError:  # an optional verb whose module is not installed

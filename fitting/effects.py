@@ -1,0 +1,366 @@
+"""Candidate unmodelled effects: small, switchable augmentations of a dejax forward model.
+
+An effect has a name, a few parameters (each with bounds, an "off" value that leaves
+the baseline unchanged, a start value for fitting and a scale) and an ``apply``
+function ``(pieces, values) -> pieces`` acting on the forward-model pieces:
+
+  ``Pieces(model, loading, sensor, info)``: the dejax ``Model`` (its ``material``,
+  ``mass_e``, ``gravity`` leaves), the ``Loading`` (voltages wrapped in
+  ``EffectiveVoltage``) and a ``Sensor`` output transform; ``info`` holds static
+  data (slot indices of dormant viscous units, specimen size).
+
+Compiled-code reuse: every effect only swaps leaves. ``augment_material`` adds two
+*dormant* viscous units (shear modulus 1e-9 mu_inf, i.e. off) that the ``creep``
+and ``hysteresis`` effects switch on, and every voltage history is wrapped in an
+``EffectiveVoltage`` whose lag/leak are off by default; so the baseline and all
+candidates share one pytree structure and one compiled ``simulate``.
+
+Library (``EFFECTS``):
+
+==================  ==========================================  =====================================
+name                parameters (SI)                             realisation
+==================  ==========================================  =====================================
+creep               mu (Pa), tau (s) ~ 0.5-50 s                 extra slow Gent viscous unit
+hysteresis          mu (Pa), tau (s) ~ 1e-3-0.5 s               extra fast Gent viscous unit
+voltage_lag         tau (s)                                     first-order RC filter command->electrode
+leakage             frac (-), tau (s)                           field screening by leakage/space charge
+electrostriction    eps_a (-)                                   Material.eps_a: eps(1+eps_a(I1bar-3))
+electrode_stiffness rel (-)                                     mu_inf -> mu_inf (1 + rel)
+added_mass          rel (-)                                     mass matrix -> (1 + rel) M
+prestress           s0 (Pa)                                     equibiaxial in-plane dead load
+sensor_offset       c (output units)                            y -> y + c
+sensor_drift        rate (output units / s)                     y -> y + rate t
+sensor_latency      delay (s)                                   y(t) -> y(t - delay)
+==================  ==========================================  =====================================
+
+Not realisable without core changes (``UNAVAILABLE``): ``mullins`` and a kinematic
+``prestretch``; see the messages there.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, Mapping
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dejax import integrate as it
+from dejax.material import Material
+
+__all__ = [
+    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "EFFECTS", "UNAVAILABLE",
+    "get", "names", "augment_material", "make_pieces", "apply_effects", "from_experiment",
+]
+
+DORMANT = 1e-9  # shear modulus of a dormant viscous unit, relative to mu_inf
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(64)
+
+
+# ----------------------------------------------------------------------------- voltage filters
+
+
+def lowpass(history, tau, t):
+    """First-order low-pass of ``history`` (t -> V) with time constant tau (s), zero state at t = 0:
+
+        y(t) = int_0^t exp(-(t - s)/tau)/tau phi(s) ds.
+
+    Evaluated with the substitution w = 1 - exp(-u/tau), u = t - s, as
+    y(t) = int_0^W phi(t + tau log(1 - w)) dw, W = 1 - exp(-t/tau), by 64-point
+    Gauss-Legendre (smooth in w for smooth phi; relative error ~1e-5 for a few-cycle sine,
+    see tests). tau <= 1e-9 returns phi(t). Pure jnp: runs inside jit, differentiable."""
+    t = jnp.asarray(t, dtype=float)
+    tau = jnp.asarray(tau, dtype=float)
+    ts = jnp.maximum(tau, 1e-9)
+    W = -jnp.expm1(-t / ts)
+    w = 0.5 * W[..., None] * (jnp.asarray(_GL_X) + 1.0)
+    s = t[..., None] + ts * jnp.log1p(-w)
+    y = 0.5 * W * jnp.sum(jnp.asarray(_GL_W) * history(s), axis=-1)
+    return jnp.where(tau <= 1e-9, history(t), y)
+
+
+class EffectiveVoltage(eqx.Module):
+    """Electrode voltage seen by the film, from the commanded history ``base``:
+
+        v_e = LP_lag(phi)                         (RC lag of amplifier + electrode resistance)
+        phi_eff = v_e - frac * LP_leak(phi)       (field screening by leakage / injected charge)
+
+    lag = 0 and frac = 0 (the defaults) give phi_eff = phi. The leakage term models a
+    film whose leakage current charges a screening (space-charge / contact) layer with
+    time constant tau_leak: under a constant command phi_eff decays from phi to
+    (1 - frac) phi as 1 - frac (1 - exp(-t/tau_leak)). (Approximation: the leak filter acts
+    on the command, not on the lagged voltage; exact when tau_leak >> lag.)"""
+
+    base: eqx.Module
+    lag: jax.Array
+    frac: jax.Array
+    tau_leak: jax.Array
+
+    def __init__(self, base, lag=0.0, frac=0.0, tau_leak=1.0):
+        self.base = base
+        self.lag = jnp.asarray(lag, dtype=float)
+        self.frac = jnp.asarray(frac, dtype=float)
+        self.tau_leak = jnp.asarray(tau_leak, dtype=float)
+
+    def __call__(self, t):
+        ve = lowpass(self.base, self.lag, t)
+        return ve - self.frac * lowpass(self.base, self.tau_leak, t)
+
+
+# ----------------------------------------------------------------------------- pieces
+
+
+class Sensor(eqx.Module):
+    """Output transform y_meas(t) = y(t - delay) + offset + drift t (y(t) = y(0) for t < 0)."""
+
+    delay: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
+    offset: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
+    drift: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
+
+    def __call__(self, t, y):
+        t = jnp.asarray(t, dtype=float)
+        y = jnp.asarray(y, dtype=float)
+        yd = jnp.interp(t - self.delay, t, y)
+        return yd + self.offset + self.drift * (t - t[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class Pieces:
+    """Forward-model pieces an effect acts on (see the module docstring)."""
+
+    model: object
+    loading: it.Loading
+    sensor: Sensor
+    info: Mapping = dataclasses.field(default_factory=dict)
+
+    def replace(self, **kw) -> "Pieces":
+        return dataclasses.replace(self, **kw)
+
+
+@dataclasses.dataclass(frozen=True)
+class Param:
+    """One effect parameter: ``off`` leaves the baseline unchanged; ``start`` is where a
+    fit begins; ``scale`` "lin" or "log" is the fitting parametrisation."""
+
+    name: str
+    off: float
+    bounds: tuple[float, float]
+    start: float
+    scale: str = "lin"
+    unit: str = "-"
+    doc: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Effect:
+    name: str
+    params: tuple[Param, ...]
+    apply: Callable[[Pieces, Mapping[str, float]], Pieces]
+    doc: str
+    kind: str = "model"  # "model" (needs a new simulation) or "sensor" (output transform only)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params)
+
+    def off(self) -> dict:
+        return {p.name: p.off for p in self.params}
+
+    def start(self) -> dict:
+        return {p.name: p.start for p in self.params}
+
+    def values(self, given: Mapping | None = None) -> dict:
+        """Parameter values: ``given`` (e.g. an [effects.NAME] table) over the off values;
+        unknown keys raise."""
+        given = dict(given or {})
+        out = self.off()
+        for k, v in given.items():
+            if k not in out:
+                raise KeyError(f"effect '{self.name}' has no parameter '{k}'; parameters: {sorted(out)}")
+            out[k] = float(v)
+        return out
+
+
+# ----------------------------------------------------------------------------- apply functions
+
+
+def _set_unit(pieces: Pieces, slot_key: str, mu, tau) -> Pieces:
+    m = pieces.model.material
+    k = pieces.info[slot_key]
+    mu_floor = DORMANT * m.mu_inf
+    mu_k = jnp.maximum(jnp.asarray(mu, dtype=float), mu_floor)
+    ratio = pieces.info.get("K_over_mu", 1e5)
+    mat = eqx.tree_at(lambda mm: (mm.mu, mm.K, mm.eta),
+                      m, (m.mu.at[k].set(mu_k), m.K.at[k].set(ratio * mu_k), m.eta.at[k].set(2.0 * mu_k * tau)))
+    return pieces.replace(model=eqx.tree_at(lambda md: md.material, pieces.model, mat))
+
+
+def _map_voltages(pieces: Pieces, fn) -> Pieces:
+    v = tuple(fn(h) for h in pieces.loading.voltages)
+    return pieces.replace(loading=eqx.tree_at(lambda l: l.voltages, pieces.loading, v))
+
+
+def _creep(p, v):
+    return _set_unit(p, "slot_creep", v["mu"], v["tau"])
+
+
+def _hyst(p, v):
+    return _set_unit(p, "slot_hysteresis", v["mu"], v["tau"])
+
+
+def _lag(p, v):
+    return _map_voltages(p, lambda h: eqx.tree_at(lambda e: e.lag, h, jnp.asarray(v["tau"], dtype=float)))
+
+
+def _leak(p, v):
+    return _map_voltages(p, lambda h: eqx.tree_at(lambda e: (e.frac, e.tau_leak), h,
+                                                  (jnp.asarray(v["frac"], dtype=float),
+                                                   jnp.asarray(v["tau"], dtype=float))))
+
+
+def _eps_a(p, v):
+    mat = eqx.tree_at(lambda m: m.eps_a, p.model.material, jnp.asarray(v["eps_a"], dtype=float))
+    return p.replace(model=eqx.tree_at(lambda md: md.material, p.model, mat))
+
+
+def _stiff(p, v):
+    m = p.model.material
+    mat = eqx.tree_at(lambda mm: mm.mu_inf, m, m.mu_inf * (1.0 + v["rel"]))
+    return p.replace(model=eqx.tree_at(lambda md: md.material, p.model, mat))
+
+
+def _mass(p, v):
+    return p.replace(model=eqx.tree_at(lambda md: md.mass_e, p.model, p.model.mass_e * (1.0 + v["rel"])))
+
+
+def _total_mass(model):
+    # sum over elements of 1^T Mc 1 on position slots (the rigid-translation mass)
+    ones = jnp.zeros((model.mass_e.shape[0], 8, 4)).at[:, :, 0].set(1.0).reshape(-1, 32)
+    return jnp.sum(jnp.einsum("eab,ea,eb->e", model.mass_e, ones, ones))
+
+
+def _prestress(p, v):
+    # a body force b (per unit mass) in +x and +y: resultant m b on the symmetry faces x = 0, y = 0,
+    # i.e. a nominal stress s0 = m b / A on them (A = face area) decreasing linearly to 0 at the
+    # free faces (mean pre-stress s0 / 2): a dead in-plane load on the film
+    area = p.info.get("face_area", 1e-6)
+    b = v["s0"] * area / _total_mass(p.model)
+    g = jnp.stack([b, b, jnp.zeros_like(b)])
+    return p.replace(model=eqx.tree_at(lambda md: md.gravity, p.model, g))
+
+
+def _offset(p, v):
+    return p.replace(sensor=eqx.tree_at(lambda s: s.offset, p.sensor, jnp.asarray(v["c"], dtype=float)))
+
+
+def _drift(p, v):
+    return p.replace(sensor=eqx.tree_at(lambda s: s.drift, p.sensor, jnp.asarray(v["rate"], dtype=float)))
+
+
+def _latency(p, v):
+    return p.replace(sensor=eqx.tree_at(lambda s: s.delay, p.sensor, jnp.asarray(v["delay"], dtype=float)))
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in [
+    Effect("creep", (Param("mu", 0.0, (0.0, 2e5), 5e3, unit="Pa", doc="shear modulus of the extra unit"),
+                     Param("tau", 5.0, (0.5, 50.0), 5.0, "log", "s", "relaxation time eta/(2 mu)")),
+           _creep, "additional slow viscous Gent unit (creep / slow relaxation over many cycles)"),
+    Effect("hysteresis", (Param("mu", 0.0, (0.0, 2e5), 5e3, unit="Pa"),
+                          Param("tau", 0.05, (1e-3, 0.5), 0.05, "log", "s")),
+           _hyst, "additional fast viscous Gent unit (loop area / hysteresis within a cycle)"),
+    Effect("voltage_lag", (Param("tau", 0.0, (0.0, 0.2), 0.0, unit="s", doc="RC time constant"),),
+           _lag, "first-order lag between commanded and electrode voltage (source/electrode resistance x capacitance)"),
+    Effect("leakage", (Param("frac", 0.0, (0.0, 0.6), 0.0, doc="screened fraction of the field at steady state"),
+                       Param("tau", 2.0, (0.05, 50.0), 2.0, "log", "s", "charging time of the screening layer")),
+           _leak, "leakage current / charge injection: effective field decays under constant voltage"),
+    Effect("electrostriction", (Param("eps_a", 0.0, (-0.3, 0.3), 0.0, doc="eps(1 + eps_a (I1bar - 3))"),),
+           _eps_a, "stretch-dependent permittivity (Material.eps_a)"),
+    Effect("electrode_stiffness", (Param("rel", 0.0, (-0.5, 2.0), 0.0, doc="mu_layer t_layer / (mu_inf h)"),),
+           _stiff, "stiffness of electrodes/fixtures: a parallel neo-Hookean layer, lumped into mu_inf "
+           "(approximation: the layer shares the film's Gent limit Jm_inf)"),
+    Effect("added_mass", (Param("rel", 0.0, (0.0, 100.0), 0.0, doc="added mass / film mass"),),
+           _mass, "mass of electrodes/fixtures, smeared over the film (mass matrix scaled; gravity, if any, too)"),
+    Effect("prestress", (Param("s0", 0.0, (0.0, 1e5), 0.0, unit="Pa", doc="nominal in-plane dead-load stress"),),
+           _prestress, "equibiaxial in-plane dead load (pre-stress) applied as a uniform body force "
+           "(nominal stress s0 at the clamped faces, 0 at the free faces)"),
+    Effect("sensor_offset", (Param("c", 0.0, (-1.0, 1.0), 0.0, unit="output"),), _offset,
+           "constant sensor offset", "sensor"),
+    Effect("sensor_drift", (Param("rate", 0.0, (-1.0, 1.0), 0.0, unit="output/s"),), _drift,
+           "linear sensor drift", "sensor"),
+    Effect("sensor_latency", (Param("delay", 0.0, (0.0, 0.2), 0.0, unit="s"),), _latency,
+           "sensor latency (pure delay of the measured output)", "sensor"),
+]}
+
+UNAVAILABLE = {
+    "mullins": (
+        "Mullins softening needs a history variable (max_t I1bar, or a damage variable, per Gauss point) "
+        "carried in dejax.integrate.State next to Cv, updated after each converged step, and a free energy "
+        "psi(F, E, Cv, d) = (1 - d(I1max)) psi_inf + ... in dejax.material.free_energy (with the matching "
+        "stress/tangent and its derivative rule). The current State and free_energy have no such slot."),
+    "prestretch": (
+        "A kinematic pre-stretch (film stretched on a frame before the electrodes act) needs either "
+        "prescribed-motion channels holding the free faces of the block (dejax.scenarios.block has none; "
+        "only uniaxial has one motion channel) or a stress-free intermediate configuration F = Fe Fp with a "
+        "per-Gauss-point Fp = diag(lp, lp, 1/lp^2) in dejax.material. Available instead: 'prestress', "
+        "a dead in-plane load that produces the pre-stretch by force."),
+}
+
+
+def names() -> list[str]:
+    return list(EFFECTS)
+
+
+def get(name: str) -> Effect:
+    if name in UNAVAILABLE:
+        raise NotImplementedError(f"effect '{name}' is not realisable with the current core: {UNAVAILABLE[name]}")
+    if name not in EFFECTS:
+        raise KeyError(f"unknown effect '{name}'; known: {sorted(EFFECTS)}")
+    return EFFECTS[name]
+
+
+# ----------------------------------------------------------------------------- building
+
+
+def augment_material(material: Material, n_extra: int = 2, Jm: float = 5.0) -> Material:
+    """The material with ``n_extra`` dormant viscous units appended (mu = 1e-9 mu_inf,
+    K = K/mu ratio of the baseline (1e5 without units), eta = 2 mu tau with tau 1 s)."""
+    mu0 = DORMANT * float(material.mu_inf)
+    ratio = float(material.K[0] / material.mu[0]) if material.n_units else 1e5
+    return Material(material.mu_inf, material.K_inf, material.Jm_inf, material.eps, material.rho,
+                    mu=list(np.asarray(material.mu)) + [mu0] * n_extra,
+                    K=list(np.asarray(material.K)) + [ratio * mu0] * n_extra,
+                    Jm=list(np.asarray(material.Jm)) + [Jm] * n_extra,
+                    eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a)
+
+
+def make_pieces(problem, face_area: float | None = None) -> Pieces:
+    """Pieces of a dejax ``Problem`` built with an ``augment_material`` material (two dormant
+    units last): voltages wrapped in EffectiveVoltage, identity Sensor."""
+    mat = problem.model.material
+    n = mat.n_units
+    if n < 2:
+        raise ValueError("make_pieces: build the problem with augment_material(...) (two dormant units)")
+    ratio = float(mat.K[0] / mat.mu[0]) if n > 2 else 1e5
+    volt = tuple(h if isinstance(h, EffectiveVoltage) else EffectiveVoltage(h) for h in problem.loading.voltages)
+    loading = eqx.tree_at(lambda l: l.voltages, problem.loading, volt) if volt else problem.loading
+    if face_area is None:
+        L = problem.params.get("L", 1e-3)
+        face_area = float(L) ** 2
+    info = {"slot_creep": n - 2, "slot_hysteresis": n - 1, "K_over_mu": ratio, "face_area": face_area}
+    return Pieces(problem.model, loading, Sensor(), info)
+
+
+def apply_effects(pieces: Pieces, effects: Mapping[str, Mapping[str, float]]) -> Pieces:
+    """Apply several effects in turn: {name: {param: value}} (missing params: off values)."""
+    for name, vals in effects.items():
+        e = get(name)
+        pieces = e.apply(pieces, e.values(vals))
+    return pieces
+
+
+def from_experiment(exp) -> dict:
+    """{name: values} of the effects switched on in an Experiment's [effects] tables
+    (parameters not given take their off values; unknown effects raise)."""
+    return {name: get(name).values({k: v for k, v in params.items() if isinstance(v, (int, float))})
+            for name, params in exp.effects.items()}

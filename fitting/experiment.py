@@ -1,0 +1,316 @@
+"""Forward models for fitting, built from scenarios, and the ``dejax fit`` verb.
+
+* ``UniaxialForward``: stretch-controlled uniaxial test (``dejax.scenarios.uniaxial``,
+  1 element by default); ``data`` = dict(times (N+1,), knots_t, knots_lam, t_obs,
+  [volt_t, volt_v]); predicts the nominal stress at ``t_obs``.
+* ``BlockForward``: the DE block under a voltage history; predicts
+  ``lateral_stretch`` (or any block output) at ``t_obs``.
+* ``RolledForward``: the rolled tube (small mesh); predicts x_P (m) at ``t_obs``.
+* ``uniaxial_target(...)``, ``hossain_target(peak, rate, ...)``: Targets for fitting.fit.
+* ``from_experiment(exp)``: (forward, params0, free, bounds, targets, holdout, options)
+  from a ``fitting.data.Experiment``.
+* ``register(subparsers)``: adds ``fit`` (``dejax fit experiment.toml --out DIR``).
+
+Every trace of one forward is simulated on the same number of steps N (dt =
+T / N varies between traces) so that compiled code is shared.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dejax import integrate as it
+from dejax import scenarios
+from dejax.material import Material
+
+from .fit import PARAM_PATTERN, Target, fit
+
+__all__ = ["Interp", "UniaxialForward", "BlockForward", "RolledForward", "uniaxial_target", "hossain_target",
+           "material_from", "from_experiment", "run_experiment", "register"]
+
+
+class Interp(eqx.Module):
+    """t -> interp(t, times, values): a history whose knots may be traced arrays."""
+
+    times: jax.Array
+    values: jax.Array
+
+    def __call__(self, t):
+        return jnp.interp(jnp.asarray(t, dtype=float), self.times, self.values)
+
+
+def material_from(params, n_units: int) -> Material:
+    """Material from a parameter dict (mu_inf, K_inf, Jm_inf, eps, rho, mu_i, K_i, Jm_i, eta_i)."""
+    unit = {k: [params[f"{k}_{i + 1}"] for i in range(n_units)] for k in ("mu", "K", "Jm", "eta")}
+    stack = {k: (jnp.stack([jnp.asarray(x, dtype=float) for x in v]) if v else ()) for k, v in unit.items()}
+    return Material(params["mu_inf"], params["K_inf"], params["Jm_inf"], params["eps"], params["rho"], **stack)
+
+
+def _check_ok(sol, pred):
+    return jnp.where(sol.status == 0, pred, jnp.nan)
+
+
+class _Hashable:
+    def _key(self):
+        return tuple(sorted(self.__dict__.items()))
+
+    def __hash__(self):
+        return hash((type(self).__name__,) + self._key())
+
+    def __eq__(self, other):
+        return type(other) is type(self) and other._key() == self._key()
+
+
+class UniaxialForward(_Hashable):
+    """Stress (Pa) of a stretch-controlled uniaxial test at the observation times.
+
+    n_units: viscous units; lz: thickness (m) when a voltage acts across it;
+    voltage: whether ``data`` carries a voltage history; output: "stress".
+    Newton: full Newton (reuse=False) with up to 40 iterations by default: the first
+    step of a slow test (large dt, stretch increment ~0.01) did not converge in 25
+    modified-Newton iterations.
+    """
+
+    def __init__(self, n_units: int, voltage: bool = False, lz: float = 1e-3, output: str = "stress",
+                 tol: float = 1e-9, max_iter: int = 40, reuse: bool = False):
+        self.n_units, self.voltage, self.lz, self.output = int(n_units), bool(voltage), float(lz), output
+        self.tol, self.max_iter, self.reuse = float(tol), int(max_iter), bool(reuse)
+
+    def problem(self, params, data):
+        mat = material_from(params, self.n_units)
+        volt = Interp(data["volt_t"], data["volt_v"]) if self.voltage else None
+        p = scenarios.uniaxial(Interp(data["knots_t"], data["knots_lam"]), mat, voltage=volt, lz=self.lz,
+                               damping=params.get("c_d", 0.0))
+        return p
+
+    def simulate(self, params, data):
+        p = self.problem(params, data)
+        return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(0.0),
+                           it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse))
+
+    def __call__(self, params, data):
+        sol = self.simulate(params, data)
+        return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
+
+
+class BlockForward(_Hashable):
+    """An output of the DE block (default lateral_stretch) under a voltage history."""
+
+    def __init__(self, n_units: int, L: float = 1e-3, output: str = "lateral_stretch", rho_inf: float = 0.8):
+        self.n_units, self.L, self.output, self.rho_inf = int(n_units), float(L), output, float(rho_inf)
+
+    def __call__(self, params, data):
+        mat = material_from(params, self.n_units)
+        p = scenarios.block(L=self.L, material=mat, voltage=Interp(data["volt_t"], data["volt_v"]),
+                            damping=params.get("c_d", 0.0))
+        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf))
+        return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
+
+
+class RolledForward(_Hashable):
+    """Axial displacement x_P (m) of the rolled tube under a voltage history."""
+
+    def __init__(self, n_units: int, h: float, r: float, L: float, shape=(1, 4, 1), rho_inf: float = 0.8,
+                 output: str = "x_P"):
+        self.n_units, self.h, self.r, self.L = int(n_units), float(h), float(r), float(L)
+        self.shape, self.rho_inf, self.output = tuple(int(s) for s in shape), float(rho_inf), output
+
+    def __call__(self, params, data):
+        mat = material_from(params, self.n_units)
+        p = scenarios.rolled(mat, h=self.h, r=self.r, L=self.L, shape=self.shape,
+                             voltage=Interp(data["volt_t"], data["volt_v"]), damping=params.get("c_d", 0.0))
+        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf))
+        return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
+
+
+# ----------------------------------------------------------------------------- targets
+
+
+def _subsample(n: int, max_points: int | None) -> np.ndarray:
+    if max_points is None or n <= max_points:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, max_points)).astype(int))
+
+
+def uniaxial_target(name, time, stretch, stress, n_steps: int, voltage=None, max_points=None, knots=None,
+                    weight=1.0) -> Target:
+    """Target for ``UniaxialForward``: the measured stress at the measured times.
+
+    The prescribed stretch history interpolates ``knots`` = (times, stretches) if
+    given, else the measured (time, stretch) pairs. The simulation runs on
+    ``n_steps`` uniform steps over [0, time[-1]].
+    """
+    time, stretch, stress = (np.asarray(a, dtype=float) for a in (time, stretch, stress))
+    kt, kl = (time, stretch) if knots is None else (np.asarray(knots[0], float), np.asarray(knots[1], float))
+    keep = np.concatenate([[True], np.diff(kt) > 0])  # strictly increasing knots
+    kt, kl = kt[keep], kl[keep]
+    idx = _subsample(time.size, max_points)
+    data = dict(times=jnp.asarray(np.linspace(0.0, float(time[-1]), n_steps + 1)),
+                knots_t=jnp.asarray(kt), knots_lam=jnp.asarray(kl), t_obs=jnp.asarray(time[idx]))
+    if voltage is not None:
+        data["volt_t"] = jnp.asarray(time[keep] if knots is None else time)
+        data["volt_v"] = jnp.asarray(np.asarray(voltage, float)[keep] if knots is None else voltage)
+    return Target(name, stress[idx], data, t=time[idx], x=stretch[idx], weight=weight, ylabel="nominal stress (Pa)",
+                  xlabel="stretch")
+
+
+def triangle_knots(time, stretch):
+    """(times, stretches) of the ideal loading-unloading triangle through the start, peak and end."""
+    i = int(np.argmax(stretch))
+    return np.array([time[0], time[i], time[-1]]), np.array([stretch[0], stretch[i], stretch[-1]])
+
+
+def hossain_target(peak: float, rate: float, n_steps: int, max_points=None) -> Target:
+    """Target of one Hossain et al. (2012) VHB 4910 curve, ideal triangle stretch history."""
+    from .datasets import load_hossain2012
+
+    c = load_hossain2012(peak, rate)
+    return uniaxial_target(f"hossain_{peak:g}_{rate:g}", c.time, c.stretch, c.stress, n_steps,
+                           max_points=max_points, knots=triangle_knots(c.time, c.stretch))
+
+
+# ----------------------------------------------------------------------------- experiment files
+
+
+def from_experiment(exp, n_steps: int | None = None, max_points: int | None = None):
+    """(forward, params0, free, bounds, targets, holdout, options) for a fitting.data.Experiment."""
+    params0 = {k: v for k, v in exp.parameters().items() if PARAM_PATTERN.match(k)}
+    params0["c_d"] = float(exp.solver.get("damping", 0.0))
+    free = list(exp.fit.free)
+    for k in free:
+        if not PARAM_PATTERN.match(k):
+            raise ValueError(f"free parameter {k!r} is not supported by dejax fit (material parameters and c_d only)")
+    if "c_d" in free and params0["c_d"] <= 0:
+        params0["c_d"] = 1.0
+    bounds = {k: tuple(v) for k, v in exp.fit.bounds.items()}
+    n = exp.n_units
+    opts = dict(exp.fit.options)
+    sc = exp.scenario
+    g = exp.geometry
+    dt = exp.solver.get("dt")
+
+    def steps_for(T, default):
+        if n_steps is not None:
+            return int(n_steps)
+        return int(np.ceil(T / dt)) if dt else default
+
+    targets, holdout = [], []
+    Ts = [float(tr.time[-1]) for tr in exp.traces if tr.time is not None]
+    if len(Ts) != len(exp.traces):
+        raise ValueError("every trace needs a time column for dejax fit")
+    if sc == "uniaxial":
+        fwd = UniaxialForward(n, voltage=any(tr.voltage() is not None for tr in exp.traces), lz=float(g.get("h", 1e-3)))
+        for tr in exp.traces:
+            lam = tr["stretch"]
+            dl = np.sum(np.abs(np.diff(lam)))
+            N = int(n_steps) if n_steps is not None else max(int(np.ceil(dl / 2.5e-3)), 50)
+            v = tr.voltage()
+            if fwd.voltage and v is None:
+                v = np.zeros_like(tr.time)
+            tg = uniaxial_target(tr.name, tr.time, lam, tr["stress"], N, voltage=v if fwd.voltage else None,
+                                 max_points=max_points, weight=tr.weight)
+            (targets if tr.role == "fit" else holdout).append(tg)
+        # one compiled simulation for all traces: same number of steps
+        N = max(int(t.data["times"].shape[0]) - 1 for t in targets + holdout)
+        for t in targets + holdout:
+            t.data["times"] = jnp.linspace(0.0, float(t.data["times"][-1]), N + 1)
+    elif sc in ("block", "rolled"):
+        if sc == "block":
+            fwd = BlockForward(n, L=float(g.get("L", g.get("lx", 1e-3))), rho_inf=float(exp.solver.get("rho_inf", 0.8)))
+            channel = "stretch"
+        else:
+            mesh = tuple(g.get("mesh", (1, 4, 1)))
+            fwd = RolledForward(n, g["h"], g["r"], g["L"], shape=mesh, rho_inf=float(exp.solver.get("rho_inf", 0.8)))
+            channel = "displacement"
+        N = max(steps_for(T, 200) for T in Ts)
+        for tr in exp.traces:
+            y = tr[channel]
+            v = tr.voltage()
+            if v is None:
+                raise ValueError(f"trace {tr.name!r}: needs a voltage channel or a loading table")
+            idx = _subsample(y.size, max_points)
+            data = dict(times=jnp.linspace(0.0, float(tr.time[-1]), N + 1), volt_t=jnp.asarray(tr.time),
+                        volt_v=jnp.asarray(v), t_obs=jnp.asarray(tr.time[idx]))
+            tg = Target(tr.name, y[idx], data, t=tr.time[idx], x=np.asarray(v)[idx], weight=tr.weight,
+                        ylabel=f"{channel} (SI)", xlabel="voltage (V)")
+            (targets if tr.role == "fit" else holdout).append(tg)
+    else:
+        raise ValueError(f"dejax fit: scenario {sc!r} is not supported (uniaxial, block, rolled)")
+    if not targets:
+        raise ValueError("the experiment has no trace with role = 'fit'")
+    return fwd, params0, free, bounds, targets, holdout, opts
+
+
+def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=None, max_points=None,
+                   verbose=True, plots=True):
+    """Load an experiment TOML, fit it, write outputs; return the FitResult."""
+    from .data import load_experiment
+
+    exp = load_experiment(path)
+    fwd, params0, free, bounds, targets, holdout, opts = from_experiment(exp, n_steps=n_steps, max_points=max_points)
+    max_iter = int(opts.get("max_iter", 40))
+    a = adam_steps if adam_steps is not None else max_iter // 2
+    b = lbfgs_steps if lbfgs_steps is not None else max_iter - a
+    res = fit(fwd, params0, free, bounds, targets, holdout, adam_steps=a, lbfgs_steps=b,
+              adam_lr=float(opts.get("learning_rate", 0.1)), verbose=verbose)
+    if out is not None:
+        res.save(out, plots=plots)
+    return res
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def _handler(args) -> int:
+    from .data import DataError
+
+    try:
+        res = run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps, lbfgs_steps=args.lbfgs_steps,
+                             n_steps=args.steps, max_points=args.max_points, verbose=not args.quiet,
+                             plots=not args.no_plots)
+    except (DataError, ValueError, KeyError, FileNotFoundError) as e:
+        print(f"dejax fit: error: {e}", file=sys.stderr)
+        return 2
+    except FloatingPointError as e:
+        print(f"dejax fit: {e}", file=sys.stderr)
+        return 1
+    if args.quiet:
+        print(res.table())
+    if args.out:
+        print(f"wrote {Path(args.out) / 'fit.json'}")
+    return 0
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add the ``fit`` verb to an argparse subparsers object (func=handler)."""
+    p = subparsers.add_parser("fit", help="fit material parameters to an experiment file (TOML + CSV)",
+                              description="Fit the [fit] free parameters of an experiment TOML to its 'fit' "
+                                          "traces; report held-out errors; write fit.json and PNGs to --out.")
+    p.add_argument("experiment", help="experiment TOML file")
+    p.add_argument("--out", default=None, help="output folder (fit.json, PNG plots)")
+    p.add_argument("--adam-steps", type=int, default=None, help="Adam iterations (default: max_iter / 2)")
+    p.add_argument("--lbfgs-steps", type=int, default=None, help="L-BFGS iterations (default: the rest of max_iter)")
+    p.add_argument("--steps", type=int, default=None, help="time steps per trace (default: from the data / [solver] dt)")
+    p.add_argument("--max-points", type=int, default=None, help="subsample each trace to at most this many points")
+    p.add_argument("--no-plots", action="store_true", help="write fit.json only")
+    p.add_argument("--quiet", action="store_true", help="print only the final table")
+    p.set_defaults(func=_handler)
+    return p
+
+
+def main(argv=None) -> int:  # pragma: no cover - convenience entry point
+    ap = argparse.ArgumentParser(prog="dejax")
+    sub = ap.add_subparsers(dest="command", required=True)
+    register(sub)
+    args = ap.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

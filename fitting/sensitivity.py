@@ -1,0 +1,246 @@
+"""Forward-mode sensitivities of the rolled tube's outputs to geometry and material.
+
+``Setup`` (hashable) fixes everything that is not differentiated: mesh shape,
+Table 2 model, voltage (sine, ``freq`` Hz, ``phi_max`` V), time grid and Newton
+options. ``outputs(p, names, setup)`` maps a parameter vector ``p`` (values of
+``names``: any of h, L, r and the material parameters mu_inf, K_inf, Jm_inf, eps,
+rho, mu_i, K_i, Jm_i, eta_i, c_d) to a dict of arrays:
+
+* ``x_P`` (n+1,): axial displacement of point P (m) at every grid time,
+* per whole cycle of the excitation: ``x_max``, ``x_min``, ``mean`` (m),
+  ``k_c`` (-, when >= 2 cycles) and ``loop_area`` (x_P against voltage, V m),
+  from ``fitting.features``.
+
+``sensitivity(params, names, setup)`` returns the values and the Jacobians
+d output / d p (``jax.jacfwd``: k forward tangents pushed through mesh generation
+(``dejax.scenarios.rolled`` builds its mesh differentiably in h, L, r) and the
+time stepping, whose per-step derivatives are implicit), plus timings of one
+simulation and of the Jacobian (both after compilation).
+
+``register(subparsers)`` adds the ``sensitivity`` verb.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time as _time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dejax import integrate as it
+from dejax import loads, scenarios
+
+from . import features as feat
+from .fit import PARAM_PATTERN, apply_params, material_params
+
+__all__ = ["Setup", "outputs", "sensitivity", "finite_differences", "default_params", "register"]
+
+GEOMETRY = ("h", "L", "r")
+
+
+@dataclasses.dataclass(frozen=True)
+class Setup:
+    """Static part of a sensitivity run (hashable)."""
+
+    shape: tuple = (1, 4, 1)
+    model: str = "I"
+    freq: float = 100.0
+    phi_max: float = 25e3
+    t_end: float = 0.03
+    dt: float = 5e-4
+    rho_inf: float = 0.8
+    tol: float = 1e-11
+    max_iter: int = 50
+    features: bool = True
+
+    @property
+    def times(self) -> np.ndarray:
+        return it.time_grid(self.t_end, self.dt)
+
+
+def default_params(setup: Setup) -> dict:
+    """h = r = 2 mm, L = 8 mm and the material of ``setup.model`` (c_d = 0)."""
+    p = dict(h=2e-3, L=8e-3, r=2e-3)
+    p.update(material_params(scenarios.rolled_material(setup.model), damping=0.0))
+    return p
+
+
+def _check_names(names, params):
+    for k in names:
+        if k not in GEOMETRY and not PARAM_PATTERN.match(k):
+            raise KeyError(f"unknown parameter {k!r}: geometry h, L, r or a material parameter "
+                           "(mu_inf, K_inf, Jm_inf, eps, rho, mu_i, K_i, Jm_i, eta_i, c_d)")
+        if k not in params:
+            raise KeyError(f"parameter {k!r} has no value (known: {', '.join(params)})")
+
+
+def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
+    """Outputs (see the module docstring) for parameter vector ``p`` (values of ``names``),
+    other parameters from ``base``."""
+    vals = dict(base)
+    vals.update({k: p[i] for i, k in enumerate(names)})
+    prob = scenarios.rolled(setup.model, freq=setup.freq, phi_max=setup.phi_max, h=vals["h"], r=vals["r"], L=vals["L"],
+                            shape=setup.shape)
+    mat_p = {k: v for k, v in vals.items() if k not in GEOMETRY}
+    model = apply_params(prob.model, mat_p)
+    if "c_d" in vals:
+        model = eqx.tree_at(lambda m: m.damping, model, jnp.asarray(vals.get("c_d", 0.0), dtype=float))
+    t = setup.times
+    sol = it.simulate(model, prob.loading, t, prob.output_fn, it.GeneralizedAlpha(setup.rho_inf),
+                      it.NewtonOptions(tol=setup.tol, max_iter=setup.max_iter))
+    x = sol.outputs["x_P"]
+    out = {"x_P": jnp.where(sol.status == 0, x, jnp.nan)}
+    if setup.features:
+        c = feat.cycles(t, setup.freq)
+        if c.n >= 1:
+            v = sol.outputs["voltage"]
+            out["x_max"] = feat.x_max(t, x, setup.freq)
+            out["x_min"] = feat.x_min(t, x, setup.freq)
+            out["mean"] = feat.mean(t, x, setup.freq)
+            out["loop_area"] = feat.loop_area(x, v, t, setup.freq)
+            if c.n >= 2:
+                out["k_c"] = feat.k_c(t, x, setup.freq)
+    return out
+
+
+_JIT: dict = {}
+
+
+def _compiled(names: tuple, setup: Setup, kind: str):
+    key = (names, setup, kind)
+    if key not in _JIT:
+        f = lambda p, base: outputs(p, names, base, setup)  # noqa: E731
+        _JIT[key] = jax.jit(f if kind == "value" else jax.jacfwd(f))
+    return _JIT[key]
+
+
+def _block(tree):
+    return jax.tree_util.tree_map(lambda a: np.asarray(jax.block_until_ready(a)), tree)
+
+
+def sensitivity(params: dict, names, setup: Setup = Setup(), timing: bool = True) -> dict:
+    """Values, forward-mode Jacobians and timings.
+
+    Returns dict(values: name -> (..,) array, jacobian: name -> (.., k) array,
+    names, p, seconds_simulation, seconds_jacobian, ratio, compile_seconds).
+    Timings are of the compiled functions (best of 2 runs each when ``timing``).
+    """
+    names = tuple(names)
+    _check_names(names, params)
+    base = {k: float(v) for k, v in params.items()}
+    p = jnp.asarray([base[k] for k in names])
+    fv, fj = _compiled(names, setup, "value"), _compiled(names, setup, "jac")
+    tic = _time.perf_counter()
+    vals = _block(fv(p, base))
+    c1 = _time.perf_counter() - tic
+    tic = _time.perf_counter()
+    jac = _block(fj(p, base))
+    c2 = _time.perf_counter() - tic
+    res = dict(values=vals, jacobian=jac, names=list(names), p=np.asarray(p), first_call_seconds=(c1, c2))
+    if timing:
+        ts, tj = [], []
+        for _ in range(2):
+            tic = _time.perf_counter()
+            _block(fv(p, base))
+            ts.append(_time.perf_counter() - tic)
+            tic = _time.perf_counter()
+            _block(fj(p, base))
+            tj.append(_time.perf_counter() - tic)
+        res.update(seconds_simulation=min(ts), seconds_jacobian=min(tj), ratio=min(tj) / min(ts))
+    return res
+
+
+def finite_differences(params: dict, names, setup: Setup = Setup(), rel_step: float = 1e-4) -> dict:
+    """Central differences of ``outputs`` (same compiled forward function): name -> (.., k)."""
+    names = tuple(names)
+    base = {k: float(v) for k, v in params.items()}
+    p = np.asarray([base[k] for k in names])
+    fv = _compiled(names, setup, "value")
+    cols = []
+    for i in range(len(names)):
+        h = rel_step * abs(p[i])
+        pp, pm = p.copy(), p.copy()
+        pp[i] += h
+        pm[i] -= h
+        a, b = _block(fv(jnp.asarray(pp), base)), _block(fv(jnp.asarray(pm), base))
+        cols.append({k: (a[k] - b[k]) / (2 * h) for k in a})
+    return {k: np.stack([c[k] for c in cols], axis=-1) for k in cols[0]}
+
+
+def relative_error(J, J_ref) -> float:
+    """max |J - J_ref| / max |J_ref|, per column, maximum over columns."""
+    J, J_ref = np.asarray(J), np.asarray(J_ref)
+    J2, R2 = J.reshape(-1, J.shape[-1]), J_ref.reshape(-1, J_ref.shape[-1])
+    den = np.max(np.abs(R2), axis=0)
+    den = np.where(den > 0, den, 1.0)
+    return float(np.max(np.max(np.abs(J2 - R2), axis=0) / den))
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def _handler(args) -> int:
+    try:
+        shape = tuple(int(s) for s in args.mesh.lower().split("x"))
+        if len(shape) != 3:
+            raise ValueError
+    except ValueError:
+        print(f"dejax sensitivity: error: --mesh must look like 1x4x1, got {args.mesh!r}", file=sys.stderr)
+        return 2
+    setup = Setup(shape=shape, model=args.model, freq=args.freq, phi_max=args.phi_max, t_end=args.t_end, dt=args.dt)
+    params = default_params(setup)
+    names = [s.strip() for s in args.params.split(",") if s.strip()]
+    try:
+        _check_names(names, params)
+        if not (args.dt > 0 and args.t_end > args.dt):
+            raise ValueError("need 0 < --dt < --t-end")
+    except (KeyError, ValueError) as e:
+        print(f"dejax sensitivity: error: {e}", file=sys.stderr)
+        return 2
+    res = sensitivity(params, names, setup)
+    if not np.all(np.isfinite(res["values"]["x_P"])):
+        print("dejax sensitivity: the simulation failed (non-finite x_P)", file=sys.stderr)
+        return 1
+    print(f"{'output':>10} " + " ".join(f"{'d/d' + k:>12}" for k in names) + "   (relative: p/y dy/dp)")
+    for k, J in res["jacobian"].items():
+        y = res["values"][k]
+        yi = y[-1] if np.ndim(y) else y
+        Ji = J[-1] if J.ndim > 1 else J
+        rel = Ji * res["p"] / (yi if yi != 0 else 1.0)
+        print(f"{k:>10} " + " ".join(f"{r:12.4g}" for r in rel) + ("  (last)" if np.ndim(y) else ""))
+    print(f"one simulation {res['seconds_simulation']:.3f} s, jacfwd ({len(names)} parameters) "
+          f"{res['seconds_jacobian']:.3f} s, ratio {res['ratio']:.2f}")
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        d = dict(names=names, p=res["p"].tolist(), setup=dataclasses.asdict(setup),
+                 values={k: np.asarray(v).tolist() for k, v in res["values"].items()},
+                 jacobian={k: np.asarray(v).tolist() for k, v in res["jacobian"].items()},
+                 seconds_simulation=res["seconds_simulation"], seconds_jacobian=res["seconds_jacobian"],
+                 ratio=res["ratio"], time=setup.times.tolist())
+        (out / "sensitivity.json").write_text(json.dumps(d))
+        print(f"wrote {out / 'sensitivity.json'}")
+    return 0
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add the ``sensitivity`` verb to an argparse subparsers object (func=handler)."""
+    p = subparsers.add_parser("sensitivity", help="forward-mode derivatives of the tube's x_P and cycle features",
+                              description="Derivatives of x_P(t) and per-cycle features of the rolled tube with "
+                                          "respect to geometry (h, L, r) and material parameters, by jax.jacfwd.")
+    p.add_argument("--params", default="h,L,r,mu_inf,mu_1,eta_1", help="comma-separated parameter names")
+    p.add_argument("--model", default="I", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
+    p.add_argument("--mesh", default="1x4x1", help="axial x circumferential x radial elements")
+    p.add_argument("--freq", type=float, default=100.0, help="sine frequency (Hz)")
+    p.add_argument("--phi-max", type=float, default=25e3, help="peak voltage (V)")
+    p.add_argument("--t-end", type=float, default=0.03, help="end time (s)")
+    p.add_argument("--dt", type=float, default=5e-4, help="time step (s)")
+    p.add_argument("--out", default=None, help="folder for sensitivity.json")
+    p.set_defaults(func=_handler)
+    return p

@@ -1,0 +1,105 @@
+"""fitting.effects: closed-form checks of the voltage filters, sensor transform and leaf edits."""
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dejax import integrate as it
+from dejax import loads
+from dejax import scenarios as sc
+from fitting import effects as fx
+
+
+def _sine_lowpass_exact(A, w, tau, t):
+    # low-pass (zero state) of A/2 (1 - cos w t)
+    cos_resp = (np.cos(w * t) + w * tau * np.sin(w * t) - np.exp(-t / tau)) / (1 + (w * tau) ** 2)
+    return 0.5 * A * (1 - np.exp(-t / tau)) - 0.5 * A * cos_resp
+
+
+@pytest.mark.parametrize("tau", [0.003, 0.02, 0.5, 3.0])
+def test_lowpass_matches_closed_form(tau):
+    A, f = 14e3, 2.0
+    h = loads.Sine(A, f)
+    t = np.linspace(0.0, 1.5, 61)
+    y = np.asarray(fx.lowpass(h, tau, jnp.asarray(t)))
+    exact = _sine_lowpass_exact(A, 2 * np.pi * f, tau, t)
+    assert np.max(np.abs(y - exact)) < 1e-4 * A
+
+
+def test_lowpass_off_is_identity():
+    h = loads.Sine(10e3, 3.0)
+    t = jnp.linspace(0.0, 1.0, 11)
+    np.testing.assert_allclose(fx.lowpass(h, 0.0, t), h(t), rtol=0, atol=1e-9)
+
+
+def test_leakage_constant_voltage_decay():
+    # constant command: phi_eff = phi (1 - frac (1 - exp(-t/tau)))
+    ev = fx.EffectiveVoltage(loads.Constant(5e3), lag=0.0, frac=0.3, tau_leak=0.7)
+    t = np.array([0.1, 0.5, 1.0, 3.0, 10.0])
+    expect = 5e3 * (1 - 0.3 * (1 - np.exp(-t / 0.7)))
+    np.testing.assert_allclose(np.asarray(ev(jnp.asarray(t))), expect, rtol=1e-6)
+
+
+def test_sensor_transform():
+    t = jnp.linspace(0.0, 1.0, 101)
+    y = jnp.sin(2 * jnp.pi * t)
+    s = fx.Sensor(delay=jnp.asarray(0.1), offset=jnp.asarray(0.5), drift=jnp.asarray(2.0))
+    out = np.asarray(s(t, y))
+    tt = np.asarray(t)
+    expect = np.where(tt >= 0.1, np.sin(2 * np.pi * (tt - 0.1)), 0.0) + 0.5 + 2.0 * tt
+    np.testing.assert_allclose(out, expect, atol=1e-3)  # linear interpolation on a 0.01 s grid
+
+
+def _pieces():
+    mat = fx.augment_material(sc.block_material())
+    return fx.make_pieces(sc.block(material=mat, voltage=loads.Sine(12e3, 2.0)))
+
+
+def test_augment_and_apply_leaves():
+    p = _pieces()
+    m = p.model.material
+    assert m.n_units == 3 and float(m.mu[1]) == pytest.approx(67e3 * fx.DORMANT)
+    q = fx.apply_effects(p, {"creep": {"mu": 1e4, "tau": 4.0}, "hysteresis": {"mu": 2e4, "tau": 0.02},
+                             "electrostriction": {"eps_a": 0.1}, "electrode_stiffness": {"rel": 0.25},
+                             "added_mass": {"rel": 1.0}, "voltage_lag": {"tau": 0.01},
+                             "leakage": {"frac": 0.2, "tau": 3.0}, "sensor_offset": {"c": 0.1}})
+    mm = q.model.material
+    assert float(mm.mu[1]) == pytest.approx(1e4) and float(mm.eta[1]) == pytest.approx(2 * 1e4 * 4.0)
+    assert float(mm.mu[2]) == pytest.approx(2e4) and float(mm.eta[2]) == pytest.approx(2 * 2e4 * 0.02)
+    assert float(mm.mu[0]) == pytest.approx(67e3)  # baseline unit untouched
+    assert float(mm.eps_a) == pytest.approx(0.1)
+    assert float(mm.mu_inf) == pytest.approx(67e3 * 1.25)
+    np.testing.assert_allclose(q.model.mass_e, 2.0 * p.model.mass_e)
+    v = q.loading.voltages[0]
+    assert float(v.lag) == pytest.approx(0.01) and float(v.frac) == pytest.approx(0.2)
+    assert float(q.sensor.offset) == pytest.approx(0.1)
+    # same pytree structure as the baseline: compiled code is shared
+    assert jax.tree_util.tree_structure(q.model) == jax.tree_util.tree_structure(p.model)
+    assert jax.tree_util.tree_structure(q.loading) == jax.tree_util.tree_structure(p.loading)
+
+
+def test_prestress_resultant():
+    # body-force resultant on the x = 0 face = s0 * face area (L = 1 mm)
+    p = _pieces()
+    q = fx.apply_effects(p, {"prestress": {"s0": 1e4}})
+    from dejax import model as mdl
+
+    f = np.asarray(mdl.gravity_force(q.model)).reshape(-1, 4, 3)
+    assert f[:, 0, 0].sum() == pytest.approx(1e4 * 1e-6, rel=1e-9)
+    assert f[:, 0, 1].sum() == pytest.approx(1e4 * 1e-6, rel=1e-9)
+    assert abs(f[:, 0, 2].sum()) < 1e-15
+
+
+def test_names_and_errors():
+    assert {"creep", "hysteresis", "voltage_lag", "leakage", "electrostriction", "electrode_stiffness",
+            "added_mass", "prestress", "sensor_offset", "sensor_drift", "sensor_latency"} <= set(fx.names())
+    with pytest.raises(NotImplementedError, match="history variable"):
+        fx.get("mullins")
+    with pytest.raises(KeyError):
+        fx.get("creeep")
+    with pytest.raises(KeyError, match="no parameter"):
+        fx.get("creep").values({"eta": 1.0})
+    for e in fx.EFFECTS.values():
+        for p in e.params:
+            assert p.bounds[0] <= p.off <= p.bounds[1] and p.bounds[0] <= p.start <= p.bounds[1]

@@ -1,0 +1,120 @@
+"""fitting.fit: parameter transform, parameter replacement, and recovery of a known
+viscoelastic parameter set from synthetic dejax traces (0.5 % noise) with a withheld
+trace predicted (the independent expectation is the synthetic truth).
+
+The recovery test compiles a 1-element uniaxial simulation with 2 viscous units
+(value_and_grad and jacfwd: two compilations of 30-100 s each on a loaded 2-core
+machine), so it is marked slow; run with --runslow."""
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dejax import scenarios
+from fitting import fit as F
+from fitting.experiment import UniaxialForward, material_from, triangle_knots, uniaxial_target
+
+TRUTH = dict(mu_inf=20e3, K_inf=2e7, Jm_inf=60.0, eps=4.7e-11, rho=960.0,
+             mu_1=30e3, K_1=3e7, Jm_1=50.0, eta_1=3e3,      # tau_1 = eta/(2 mu) = 0.05 s
+             mu_2=10e3, K_2=1e7, Jm_2=50.0, eta_2=2e4)      # tau_2 = 1 s
+N_STEPS = 100
+PEAK = 1.5
+
+
+def test_logbox_roundtrip_and_bounds():
+    box = F.LogBox(np.array([1.0, 1e3]), np.array([100.0, 1e6]))
+    p = np.array([3.0, 5e4])
+    assert np.allclose(np.asarray(box.to_p(jnp.asarray(box.to_theta(p)))), p, rtol=1e-9)
+    big = np.asarray(box.to_p(jnp.asarray([50.0, -50.0])))
+    assert big[0] <= 100.0 * (1 + 1e-12) and big[1] >= 1e3 * (1 - 1e-12)
+
+
+def test_material_with_replaces_named_leaves():
+    m = scenarios.block_material()
+    m2 = F.material_with(m, {"mu_inf": 1.0, "eta_1": 2.0, "Jm_1": 3.0})
+    assert float(m2.mu_inf) == 1.0 and float(m2.eta[0]) == 2.0 and float(m2.Jm[0]) == 3.0
+    assert float(m2.K_inf) == float(m.K_inf)
+    with pytest.raises(KeyError):
+        F.material_with(m, {"eta_2": 1.0})
+    with pytest.raises(KeyError):
+        F.material_with(m, {"nope": 1.0})
+    mat = material_from(TRUTH, 2)
+    assert mat.n_units == 2 and float(mat.eta[1]) == 2e4
+
+
+def test_fit_rejects_bad_input():
+    with pytest.raises(KeyError):
+        F.fit(lambda p, d: d, {"a": 1.0}, ["b"], None, [])
+    with pytest.raises(ValueError):
+        F.fit(lambda p, d: d, {"a": 1.0}, ["a"], {"a": (2.0, 3.0)}, [])
+
+
+def _synthetic(rate, noise, seed):
+    """A triangle 1 -> PEAK -> 1 at ``rate`` (1/s), stress from dejax with TRUTH (+ noise)."""
+    T = 2 * (PEAK - 1) / rate
+    t = np.linspace(0, T, 41)
+    lam = np.interp(t, [0, T / 2, T], [1, PEAK, 1])
+    fwd = UniaxialForward(2)
+    tg = uniaxial_target(f"rate_{rate:g}", t, lam, np.zeros_like(t), N_STEPS, knots=triangle_knots(t, lam))
+    y = np.asarray(fwd(TRUTH, tg.data))
+    assert np.all(np.isfinite(y))
+    rng = np.random.default_rng(seed)
+    y = y + noise * np.ptp(y) * rng.standard_normal(y.size)
+    return uniaxial_target(f"rate_{rate:g}", t, lam, y, N_STEPS, knots=triangle_knots(t, lam))
+
+
+@pytest.mark.slow
+def test_recovers_synthetic_viscoelastic_parameters(tmp_path):
+    train = [_synthetic(0.5, 0.005, 1), _synthetic(5.0, 0.005, 2)]
+    held = [_synthetic(1.5, 0.0, 3)]
+    free = ["mu_inf", "mu_1", "eta_1", "mu_2", "eta_2"]
+    p0 = dict(TRUTH)
+    for k, f in zip(free, [1.4, 0.7, 2.0, 1.6, 0.5]):  # start away from the truth
+        p0[k] = TRUTH[k] * f
+    bounds = {k: (TRUTH[k] / 20, TRUTH[k] * 20) for k in free}
+    res = F.fit(UniaxialForward(2), p0, free, bounds, train, held, adam_steps=15, adam_lr=0.15, lbfgs_steps=40)
+    for k in free:
+        err = abs(res.params[k] - TRUTH[k])
+        assert err <= max(0.05 * TRUTH[k], 2 * res.stderr[k]), (k, res.params[k], TRUTH[k], res.stderr[k])
+    assert res.rms["rate_1.5"]["rel_rms"] < 0.02
+    # noise level 0.5 % of the amplitude: the training RMS must be about that
+    for tg in train:
+        assert res.rms[tg.name]["rel_rms"] < 0.01
+    paths = res.save(tmp_path)
+    d = json.loads((tmp_path / "fit.json").read_text())
+    assert set(d["free"]) == set(free) and len(d["correlation"]) == len(free)
+    assert any(p.name.startswith("loop_") for p in paths)
+
+
+def _cli(argv):
+    import argparse
+
+    from fitting import experiment
+
+    ap = argparse.ArgumentParser(prog="dejax")
+    sub = ap.add_subparsers(dest="command", required=True)
+    experiment.register(sub)
+    args = ap.parse_args(argv)
+    return args.func(args)
+
+
+def test_fit_verb_bad_file_exits_2(tmp_path, capsys):
+    assert _cli(["fit", str(tmp_path / "missing.toml")]) == 2
+    assert "error" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_fit_verb_on_example_experiment(tmp_path, capsys):
+    from pathlib import Path
+
+    toml = Path(__file__).resolve().parents[1] / "data" / "examples" / "vhb4910_uniaxial.toml"
+    rc = _cli(["fit", str(toml), "--out", str(tmp_path), "--adam-steps", "2", "--lbfgs-steps", "2",
+               "--max-points", "20"])
+    assert rc == 0
+    d = json.loads((tmp_path / "fit.json").read_text())
+    assert d["free"] == ["mu_inf", "mu_1", "eta_1"]
+    assert d["loss"] < d["loss0"]  # the fit improved on the initial guess
+    assert d["rms"]["vhb4910_1.5_0.03"]["role"] == "holdout"
+    assert (tmp_path / "loop_vhb4910_1.5_0.05.png").exists()
+    assert "RMS" in capsys.readouterr().out
