@@ -75,9 +75,12 @@ _PATTERNS: dict = {}
 
 
 def _pattern(structure) -> _Pattern:
-    p = _PATTERNS.get(id(structure))
-    if p is None or p.n != structure.n_free:
-        p = _PATTERNS[id(structure)] = _Pattern(structure)
+    from .mesh import _content_key
+
+    key = _content_key((structure.edofs, structure.col))
+    p = _PATTERNS.get(key)
+    if p is None:
+        p = _PATTERNS[key] = _Pattern(structure)
     return p
 
 

@@ -36,19 +36,41 @@ import numpy as np
 from .element import NODE_CORNERS
 
 
-class Static:
-    """Hashable-by-identity holder for static (numpy) data inside pytrees."""
+def _content_key(value):
+    """A hashable key describing ``value`` by content (numpy arrays by shape, dtype, bytes)."""
+    import dataclasses
+    import hashlib
 
-    __slots__ = ("value",)
+    if isinstance(value, np.ndarray):
+        return ("nd", value.shape, str(value.dtype), hashlib.sha1(np.ascontiguousarray(value).tobytes()).hexdigest())
+    if isinstance(value, dict):
+        return ("dict", tuple(sorted((k, _content_key(v)) for k, v in value.items())))
+    if isinstance(value, (list, tuple)):
+        return (type(value).__name__, tuple(_content_key(v) for v in value))
+    if dataclasses.is_dataclass(value):
+        return (type(value).__name__, tuple((f.name, _content_key(getattr(value, f.name))) for f in dataclasses.fields(value)))
+    try:
+        hash(value)
+        return value
+    except TypeError:
+        return ("id", id(value))
+
+
+class Static:
+    """Hashable holder for static (numpy) data inside pytrees, compared by content, so that
+    equal topologies built twice share one compiled program."""
+
+    __slots__ = ("value", "_key")
 
     def __init__(self, value: Any):
         self.value = value
+        self._key = _content_key(value)
 
     def __hash__(self):
-        return id(self.value)
+        return hash(self._key)
 
     def __eq__(self, other):
-        return isinstance(other, Static) and other.value is self.value
+        return isinstance(other, Static) and other._key == self._key
 
     def __repr__(self):
         return f"Static({type(self.value).__name__})"

@@ -22,9 +22,8 @@ numpy), central finite differences, and invariance laws.
 7. ``Material`` validation.
 8. Batched (vmap) evaluation equals the loop.
 
-Two strict xfails document bugs found in dejax/material.py (traced Material
-construction; NaN states passing check_state): they turn into failures once fixed,
-as a reminder to drop the marker.
+Two tests guard bugs found and fixed in dejax/material.py (traced Material
+construction; NaN states passing check_state).
 
 Run time: compilations are shared between tests (module-level jitted functions,
 few distinct numbers of viscous units, float64 array arguments throughout), and
@@ -575,12 +574,6 @@ def test_gent_limit_just_inside_and_jitted_placeholder():
         assert np.all(np.isfinite(np.asarray(_P(F, E, Cv, mat))))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=pytest.fail.Exception,
-    reason="check_state tests np.any(H <= 0) and np.any(J <= 0): NaN margins (NaN in F "
-           "from a diverged solve, or an invalid Cv) pass silently; remove once fixed",
-)
 def test_check_state_rejects_nan_state():
     F = np.eye(3)
     F[0, 0] = np.nan
@@ -612,12 +605,6 @@ def test_material_validation():
         Material(MU_INF, K_INF, JM_INF, EPS, RHO, mu=MU_S[:2], K=[K_S] * 2, Jm=[JM_S] * 3, eta=ETA_S[:2])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=jax.errors.TracerArrayConversionError,
-    reason="Material.__init__ counts units with np.asarray(mu): fails for traced mu "
-           "(fitting builds Material inside jax.grad); remove this marker once fixed",
-)
 def test_material_constructible_from_traced_parameters():
     F = np.diag([1.3, 0.9, 0.85])
     Cv = np.diag([1.1, 0.95, 1.0 / (1.1 * 0.95)])[None]
