@@ -203,28 +203,27 @@ def _kinematics(scheme: GeneralizedAlpha, ctx: _StepContext, q):
     return qdd1, v1, a1
 
 
-def _residual(model: Model, scheme, ctx: _StepContext, z):
-    """Free part of Eq. (28) at q_{n+1}(z): (n_free,), and the updated Cv."""
-    s = model.structure
+def _step_terms(model: Model, scheme, ctx: _StepContext, z):
+    """Shared part of the residual at q_{n+1}(z): (q, E, h, M qdd + c_d M v - Q_ext)."""
     q = mdl.full_coordinates(model, z, ctx.u1)
     qdd1, v1, _ = _kinematics(scheme, ctx, q)
     E = mdl.nominal_field(model, ctx.phi1)
     h = ctx.t1 - ctx.state.t
+    return q, E, h, mdl.mass_apply(model, qdd1 + model.damping * v1) - ctx.f_ext
+
+
+def _residual(model: Model, scheme, ctx: _StepContext, z):
+    """Free part of Eq. (28) at q_{n+1}(z): (n_free,), and the updated Cv."""
+    q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
     f_int, Cv1 = mdl.internal_force(model, q, E, ctx.state.Cv, h)
-    R = mdl.mass_apply(model, qdd1 + model.damping * v1) + f_int - ctx.f_ext
-    return mdl.reduce(model, R), Cv1
+    return mdl.reduce(model, r_inertia + f_int), Cv1
 
 
 def _iteration_matrix(model: Model, scheme, ctx: _StepContext, z):
     """(R, element iteration matrices beta' M + gamma' c_d M + K) at z."""
-    s = model.structure
-    q = mdl.full_coordinates(model, z, ctx.u1)
-    qdd1, v1, _ = _kinematics(scheme, ctx, q)
-    E = mdl.nominal_field(model, ctx.phi1)
-    h = ctx.t1 - ctx.state.t
+    q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
     fe, Ke, _ = mdl.element_tangents(model, q, E, ctx.state.Cv, h)
-    f_int = mdl.scatter_slots(model, fe)
-    R = mdl.mass_apply(model, qdd1 + model.damping * v1) + f_int - ctx.f_ext
+    R = r_inertia + mdl.scatter_slots(model, fe)
     bp = (1.0 - scheme.alpha_m) / ((1.0 - scheme.alpha_f) * scheme.beta * h * h)
     gp = scheme.gamma / (scheme.beta * h)
     Ke = Ke + (bp + gp * model.damping) * mdl.mass_elements(model)
