@@ -34,8 +34,15 @@ import numpy as np
 
 from . import model as mdl
 from .linsolve import DenseSolver
-from .material import det3
+from .material import bulk_modulus, det3
 from .model import Model
+
+
+GENT_LOCK_MARGIN = 1e-3
+"""A converged state whose Gent margin H = 1 - (I1bar - 3)/Jm falls to this value (stress
+amplified 1000-fold by 1/H) has reached the limiting stretch: reported as GENT_LIMIT. A
+nearly incompressible body may otherwise slip past the isochoric limit by a large volume
+change at GPa pressures, which is no physical state of an elastomer."""
 
 
 class Status(enum.IntEnum):
@@ -52,7 +59,7 @@ class Status(enum.IntEnum):
             Status.OK: "completed",
             Status.NEWTON_FAILED: "Newton iterations did not converge (diverging solve; possible "
             "electromechanical instability or too large a time step)",
-            Status.GENT_LIMIT: "the Gent limiting stretch was reached (1 - (I1bar - 3)/Jm <= 0)",
+            Status.GENT_LIMIT: f"the Gent limiting stretch was reached (1 - (I1bar - 3)/Jm <= {GENT_LOCK_MARGIN:g})",
             Status.NONFINITE: "the state became non-finite (NaN or inf)",
             Status.INVERTED: "an element inverted (det F <= 0)",
         }[self]
@@ -75,6 +82,8 @@ class GeneralizedAlpha:
 
     rho_inf: float = 0.8
 
+    inertial = True
+
     def __post_init__(self):
         if not 0.0 <= self.rho_inf <= 1.0:
             raise ValueError(f"rho_inf must lie in [0, 1], got {self.rho_inf}")
@@ -95,32 +104,111 @@ class GeneralizedAlpha:
     def beta(self) -> float:
         return 0.25 * (self.gamma + 0.5) ** 2
 
+    def kinematics(self, s: "State", h, q):
+        """(qdd_{n+1}, v_{n+1}, a_{n+1}) implied by q_{n+1} (Eqs. 31-32)."""
+        b, g, am, af = self.beta, self.gamma, self.alpha_m, self.alpha_f
+        a1 = (q - s.q - h * s.v - h * h * (0.5 - b) * s.a) / (h * h * b)
+        qdd1 = ((1.0 - am) * a1 + am * s.a - af * s.qdd) / (1.0 - af)
+        v1 = s.v + h * (1.0 - g) * s.a + h * g * a1
+        return qdd1, v1, a1
+
+    def matrix_coefficients(self, h):
+        """(beta', gamma'): the iteration matrix is beta' M + gamma' c_d M + K (Eq. 35)."""
+        bp = (1.0 - self.alpha_m) / ((1.0 - self.alpha_f) * self.beta * h * h)
+        return bp, self.gamma / (self.beta * h)
+
+    def predict(self, s: "State", h, predictor: str):
+        """Starting iterate of a step: "paper" (Eq. 33), "velocity" (q_n + h v_n) or "constant"."""
+        if predictor == "paper":
+            b, am, af = self.beta, self.alpha_m, self.alpha_f
+            a0 = (af * s.qdd - am * s.a) / (1.0 - am)
+            return s.q + h * s.v + h * h * (0.5 - b) * s.a + h * h * b * a0
+        if predictor == "velocity":
+            return s.q + h * s.v
+        return s.q
+
+
+@dataclasses.dataclass(frozen=True)
+class QuasiStatic:
+    """Quasi-static stepping: no inertia and no damping force; equilibrium at each time.
+
+    Velocities are backward differences (q_{n+1} - q_n) / h, accelerations zero; the viscous
+    update stays backward Euler over the step. For material tests and slow ramps."""
+
+    inertial = False
+
+    def kinematics(self, s: "State", h, q):
+        zero = jnp.zeros_like(q)
+        return zero, (q - s.q) / h, zero
+
+    def matrix_coefficients(self, h):
+        return 0.0, 0.0
+
+    def predict(self, s: "State", h, predictor: str):
+        return s.q + h * s.v if predictor in ("velocity", "paper") else s.q
+
 
 @dataclasses.dataclass(frozen=True)
 class NewtonOptions:
     """Newton controls.
 
-    Converged when max |dz_i| / scale_i <= tol, with scale_i the element size for
-    positions and 1 for gradient coordinates (a strain-like measure).
-
+    criterion: "residual" (default, the paper's terms): converged when the scaled residual
+      norm ||r|| <= tol ||r_0|| (r_0 at the step's first iterate) or ||r|| reaches the
+      round-off floor; r stacks the reduced forces times the coordinate scale (element
+      size for positions, 1 for gradients) and, in the mixed form, the element volume
+      residuals times the bulk modulus, so every entry is an energy (J).
+      "correction": converged when max |dz_i| / scale_i <= tol (a strain-like measure).
+    tol: 1e-6 (relative residual) by default.
+    line_search: backtrack a fresh Newton direction until ||r|| decreases (Armijo), on top
+      of the admissibility safeguard (every iterate keeps det F > 0 and stays inside the
+      Gent limits); at most ``max_backtracks`` halvings.
     reuse: modified Newton: keep the factorized iteration matrix over iterations and
-      steps, and refactor only when an iteration contracts the correction by less than
-      ``refactor_rate`` (or at the first use). False: full Newton (refactor every iteration).
+      steps, and refactor only when an iteration contracts the residual by less than
+      ``refactor_rate`` or a stale direction does not decrease it (or at the first use, or
+      after a change of step size). False: full Newton (refactor every iteration).
     predictor: starting iterate of each step: "velocity" (q_n + h v_n, the default: robust
-      for quasi-static ramps with large steps, where the acceleration-based predictor and a
-      reused factorization were seen to fail), "paper" (Eq. 33, uses the acceleration) or
+      for quasi-static ramps with large steps), "paper" (Eq. 33, uses the acceleration) or
       "constant" (q_n). The converged solution does not depend on it.
     """
 
-    tol: float = 1e-9
+    tol: float = 1e-6
     max_iter: int = 25
     reuse: bool = True
     refactor_rate: float = 0.2
     predictor: str = "velocity"
+    criterion: str = "residual"
+    line_search: bool = True
+    max_backtracks: int = 8
 
     def __post_init__(self):
         if self.predictor not in ("paper", "velocity", "constant"):
             raise ValueError(f"predictor must be 'paper', 'velocity' or 'constant', got {self.predictor!r}")
+        if self.criterion not in ("residual", "correction"):
+            raise ValueError(f"criterion must be 'residual' or 'correction', got {self.criterion!r}")
+        if not self.tol > 0:
+            raise ValueError(f"Newton tolerance must be > 0, got {self.tol}")
+
+
+@dataclasses.dataclass(frozen=True)
+class StepControl:
+    """Step cut-back and growth (paper Sec. 3: dt down to 1e-6 s when needed).
+
+    A step whose Newton iteration fails (or turns non-finite) is retried with half the
+    step, recursively down to ``dt_min`` (s); after a sub-step that converges within
+    ``grow_iterations`` iterations the next one is twice as long, up to the user's step.
+    Outputs stay on the user's time grid; only a failure at ``dt_min`` is a failure.
+    ``max_substeps``: sub-steps a differentiated run may take in all (default: twice the
+    number of user steps, at least 256); past it the derivatives are NaN.
+    ``dt_min >= dt`` turns cut-back off.
+    """
+
+    dt_min: float = 1e-6
+    grow_iterations: int = 5
+    max_substeps: int | None = None
+
+    def __post_init__(self):
+        if not self.dt_min > 0:
+            raise ValueError(f"dt_min must be > 0, got {self.dt_min}")
 
 
 class Loading(eqx.Module):
@@ -141,7 +229,8 @@ class Loading(eqx.Module):
 
 
 class State(eqx.Module):
-    """Time-stepping state: t (s), q, v, qdd, a (n_dofs,), Cv (n_el, n_gp, n_units, 3, 3)."""
+    """Time-stepping state: t (s), q, v, qdd, a (n_dofs,), Cv (n_el, n_gp, n_units, 3, 3),
+    p (n_el,) element pressures (Pa; mixed form, None = 0)."""
 
     t: jax.Array
     q: jax.Array
@@ -149,41 +238,35 @@ class State(eqx.Module):
     qdd: jax.Array
     a: jax.Array
     Cv: jax.Array
-
-
-def _initial_state_jit(model, loading, t0):
-    return initial_state(model, loading, t0)
-
-
-_initial_state_jit = eqx.filter_jit(_initial_state_jit)
+    p: jax.Array | None = None
 
 
 def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0, q=None, v=None) -> State:
-    """State at t0: reference (or given) coordinates and velocities, Cv = I, and the
+    """State at t0: reference (or given) coordinates and velocities, Cv = I, p = 0, and the
     acceleration consistent with the equations of motion (M qdd = Q_ext - Q_int - C v)."""
-    s = model.structure
     q = model.q0 if q is None else jnp.asarray(q, dtype=float)
     v = jnp.zeros_like(q) if v is None else jnp.asarray(v, dtype=float)
     Cv = mdl.initial_viscous_state(model)
+    p = mdl.initial_pressure(model)
     loading = Loading() if loading is None else loading
     phi = loading.phi(t0) if model.field_dirs.shape[0] else jnp.zeros(0)
     E = mdl.nominal_field(model, phi)
-    f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0)
+    f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0, p)
     rhs = mdl.reduce(model, mdl.gravity_force(model) - f_int - model.damping * mdl.mass_apply(model, v))
-    Mff = mdl.assemble_dense(model, mdl.mass_elements(model)) if s.n_free <= 4000 else None
+    Mff = mdl.assemble_dense(model, mdl.mass_elements(model)) if model.structure.n_free <= 4000 else None
     if Mff is not None:
         qdd_f = jnp.linalg.solve(Mff, rhs)
     else:  # large: start from rest (rhs is zero at a reference state without load)
-        qdd_f = jnp.zeros(s.n_free)
+        qdd_f = jnp.zeros(model.structure.n_free)
     qdd = mdl.expand(model, qdd_f)
-    return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv)
+    return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv, p=p)
 
 
 # ----------------------------------------------------------------------------- one step
 
 
 class _StepContext(eqx.Module):
-    """Everything a step's residual depends on besides the unknown z (differentiable)."""
+    """Everything a step's residual depends on besides the unknowns (differentiable)."""
 
     state: State
     t1: jax.Array
@@ -192,104 +275,200 @@ class _StepContext(eqx.Module):
     f_ext: jax.Array
 
 
-def _kinematics(scheme: GeneralizedAlpha, ctx: _StepContext, q):
-    """(qdd_{n+1}, v_{n+1}, a_{n+1}) implied by q_{n+1}."""
-    s = ctx.state
-    h = ctx.t1 - s.t
-    b, g, am, af = scheme.beta, scheme.gamma, scheme.alpha_m, scheme.alpha_f
-    a1 = (q - s.q - h * s.v - h * h * (0.5 - b) * s.a) / (h * h * b)
-    qdd1 = ((1.0 - am) * a1 + am * s.a - af * s.qdd) / (1.0 - af)
-    v1 = s.v + h * (1.0 - g) * s.a + h * g * a1
-    return qdd1, v1, a1
-
-
 def _step_terms(model: Model, scheme, ctx: _StepContext, z):
     """Shared part of the residual at q_{n+1}(z): (q, E, h, M qdd + c_d M v - Q_ext)."""
     q = mdl.full_coordinates(model, z, ctx.u1)
-    qdd1, v1, _ = _kinematics(scheme, ctx, q)
     E = mdl.nominal_field(model, ctx.phi1)
     h = ctx.t1 - ctx.state.t
+    if not scheme.inertial:
+        return q, E, h, -ctx.f_ext
+    qdd1, v1, _ = scheme.kinematics(ctx.state, h, q)
     return q, E, h, mdl.mass_apply(model, qdd1 + model.damping * v1) - ctx.f_ext
 
 
-def _residual(model: Model, scheme, ctx: _StepContext, z):
-    """Free part of Eq. (28) at q_{n+1}(z): (n_free,), and the updated Cv."""
+def _residual(model: Model, scheme, ctx: _StepContext, z, p):
+    """Eq. (28) at q_{n+1}(z), p: reduced forces (n_free,), element volume residuals
+    (n_el,; zeros in the displacement form) and the updated Cv."""
     q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
-    f_int, Cv1 = mdl.internal_force(model, q, E, ctx.state.Cv, h)
-    return mdl.reduce(model, r_inertia + f_int), Cv1
+    fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.state.Cv, h, p)
+    g = jnp.zeros_like(p) if g is None else g
+    return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g, Cv1
 
 
-def _iteration_matrix(model: Model, scheme, ctx: _StepContext, z):
-    """(R, element iteration matrices beta' M + gamma' c_d M + K) at z."""
-    q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
-    fe, Ke, _ = mdl.element_tangents(model, q, E, ctx.state.Cv, h)
-    R = r_inertia + mdl.scatter_slots(model, fe)
-    bp = (1.0 - scheme.alpha_m) / ((1.0 - scheme.alpha_f) * scheme.beta * h * h)
-    gp = scheme.gamma / (scheme.beta * h)
-    Ke = Ke + (bp + gp * model.damping) * mdl.mass_elements(model)
-    return mdl.reduce(model, R), Ke
+def _system(model: Model, scheme, ctx: _StepContext, z, p):
+    """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
+    q, E, h, _ = _step_terms(model, scheme, ctx, z)
+    sys = mdl.element_system(model, q, E, ctx.state.Cv, h, p)
+    bp, gp = scheme.matrix_coefficients(h)
+    if scheme.inertial:
+        sys = eqx.tree_at(lambda s: s.Ke, sys, sys.Ke + (bp + gp * model.damping) * mdl.mass_elements(model))
+    return sys
 
 
-def _make_newton(scheme: GeneralizedAlpha, opts: NewtonOptions, solver):
-    """Newton solve of one step, z* = newton(model, ctx, z0, fac, valid).
+def _shear_scale(model: Model):
+    """mu_inf + sum mu_s (Pa): the stiffness scale of the deformation modes."""
+    mat = model.material
+    return mat.mu_inf + jnp.sum(mat.mu)
 
-    Returns (z*, iterations, factorizations, err, fac): fac is the factorization in use
-    at the end (handed to the next step). Derivatives of z* are implicit (custom_jvp).
-    """
 
-    def _solve(model, ctx, z0, fac, valid):
+def _residual_norm(model: Model, ru, g):
+    """Scaled residual norm (J): sqrt(sum (r_i scale_i)^2 + sum (mu g_e)^2).
+
+    Forces are weighted by the coordinate scale and volume residuals by the shear modulus
+    (the stress scale of the solution), so every entry is an energy; any positive
+    weighting keeps the Newton direction a descent direction of this norm."""
+    r2 = jnp.sum((ru * jnp.asarray(model.structure.dof_scale)) ** 2)
+    if model.structure.mixed:
+        r2 = r2 + jnp.sum((_shear_scale(model) * g) ** 2)
+    return jnp.sqrt(r2)
+
+
+def _residual_floor(model: Model):
+    """Round-off floor of the scaled residual norm (J): 64 eps x stress scale x element volume
+    x sqrt(unknowns); the stress scale is the shear modulus, plus the bulk modulus in the
+    penalty (displacement) form, where K (J - 1) is formed in floating point."""
+    stiff = _shear_scale(model) + (0.0 if model.structure.mixed else bulk_modulus(model.material))
+    v_el = jnp.sum(model.dV) / model.dV.shape[0]
+    return 64 * np.finfo(float).eps * stiff * v_el * np.sqrt(model.structure.n_free + model.dV.shape[0])
+
+
+def _condensed_rhs(model: Model, ru, g, kup, kpp):
+    """-(reduced condensed force): -(ru - T^T kup g / kpp) (n_free,)."""
+    if not model.structure.mixed:
+        return -ru
+    corr = mdl.scatter_slots(model, (kup * (g / kpp)[:, None]).reshape(-1, 32, 3))
+    return -(ru - mdl.reduce(model, corr))
+
+
+def _make_newton(scheme, opts: NewtonOptions, solver):
+    """Newton solve of one step: ``newton(model, ctx, z0, p0, fac, valid) -> (z, p,
+    iterations, factorizations, converged, fac)``; fac is the factorization in use at the
+    end (handed to the next step). Derivatives of z and p are implicit (custom_jvp)."""
+
+    def factor(model, ctx, z, p):
+        sys = _system(model, scheme, ctx, z, p)
+        if not model.structure.mixed:
+            return (solver.factor(model, sys.Ke),)
+        kpp = mdl.newton_kpp(model, sys.kpp)
+        return solver.factor(model, mdl.condense(sys.Ke, sys.kup, kpp)), sys.kup, kpp
+
+    def direction(model, fac, ru, g):
+        if not model.structure.mixed:
+            return solver.solve_factored(model, fac[0], -ru), jnp.zeros_like(g)
+        _, kup, kpp = fac
+        dz = solver.solve_factored(model, fac[0], _condensed_rhs(model, ru, g, kup, kpp))
+        return dz, mdl.pressure_correction(model, g, kup, kpp, mdl.expand(model, dz))
+
+    def _solve(model, ctx, z0, p0, fac, valid):
         scale = jnp.asarray(model.structure.dof_scale)
+        floor = _residual_floor(model)
+        ru0, g0, _ = _residual(model, scheme, ctx, z0, p0)
+        res0 = _residual_norm(model, ru0, g0)
+
+        def trial(z, p, dz, dp, a):
+            zt, pt = z + a * dz, p + a * dp
+            ok = _admissible(model, ctx, zt)
+            ru, g, _ = _residual(model, scheme, ctx, zt, pt)
+            res = _residual_norm(model, ru, g)
+            ok = ok & jnp.isfinite(res)
+            return zt, pt, ru, g, jnp.where(ok, res, jnp.inf), ok
+
+        def line_search(z, p, dz, dp, res, fresh):
+            """Backtrack from a = 1: admissibility always; Armijo decrease for a fresh direction."""
+            c1 = 1e-4
+
+            def cond(c):
+                a, k, out = c
+                zt, pt, ru, g, rt, ok = out
+                bad = (~ok) | (opts.line_search & fresh & (rt > (1.0 - c1 * a) * res))
+                return bad & (k < opts.max_backtracks)
+
+            def body(c):
+                a, k, _ = c
+                a = 0.5 * a
+                return a, k + 1, trial(z, p, dz, dp, a)
+
+            a, _, out = jax.lax.while_loop(cond, body, (jnp.asarray(1.0), 0, trial(z, p, dz, dp, 1.0)))
+            return a, out
 
         def body(c):
-            z, err, err_prev, it, nfac, finite, fac, valid = c
-            slow = (it >= 1) & (err > opts.refactor_rate * err_prev)
-            need = (~valid) | slow if opts.reuse else jnp.asarray(True)
-
-            def refactor(z):
-                R, Ke = _iteration_matrix(model, scheme, ctx, z)
-                return R, solver.factor(model, Ke)
-
-            def keep(z):
-                return _residual(model, scheme, ctx, z)[0], fac
-
-            R, fac = jax.lax.cond(need, refactor, keep, z)
-            dz = _backtrack(model, ctx, z, solver.solve_factored(model, fac, -R))
-            e = jnp.max(jnp.abs(dz) / scale)
-            ok = jnp.all(jnp.isfinite(dz)) & jnp.isfinite(e)
-            # a stale factorization that diverges (or yields non-finite values) is not
-            # applied: the iterate is kept and the next iteration refactors
-            reject = (~need) & ((~ok) | ((it >= 1) & (e > err)))
-            z = jnp.where(reject | ~ok, z, z + dz)
-            e = jnp.where(reject, err, e)
-            finite = ok | reject
-            return z, e, jnp.where(reject, err_prev, err), it + 1, nfac + need.astype(int), finite, fac, ~reject
+            z, p, ru, g, res, res_prev, it, nfac, fac, valid, conv, alive = c
+            slow = (it >= 1) & (res > opts.refactor_rate * res_prev)
+            need = ((~valid) | slow) if opts.reuse else jnp.asarray(True)
+            fac = jax.lax.cond(need, lambda: factor(model, ctx, z, p), lambda: fac)
+            dz, dp = direction(model, fac, ru, g)
+            a, (zt, pt, rut, gt, rest, ok) = line_search(z, p, dz, dp, res, need)
+            # a stale factorization whose step does not reduce the residual is not applied:
+            # the iterate is kept and the next iteration refactors
+            accept = ok & (need | (rest < res))
+            z, p = jnp.where(accept, zt, z), jnp.where(accept, pt, p)
+            ru, g = jnp.where(accept, rut, ru), jnp.where(accept, gt, g)
+            res_new = jnp.where(accept, rest, res)
+            if opts.criterion == "residual":
+                conv = accept & ((res_new <= opts.tol * res0) | (res_new <= floor))
+            else:
+                conv = accept & (jnp.max(jnp.abs(a * dz) / scale) <= opts.tol)
+            # a fresh direction that cannot be applied ends the iteration (failed step)
+            alive = accept | ~need
+            return (z, p, ru, g, res_new, jnp.where(accept, res, res_prev), it + 1, nfac + need.astype(int),
+                    fac, accept, conv, alive)
 
         def cond(c):
-            _, err, _, it, _, finite, _, _ = c
-            return (err > opts.tol) & (it < opts.max_iter) & finite
+            *_, it, _, _, _, conv, alive = c
+            return (~conv) & (it < opts.max_iter) & alive
 
-        inf = jnp.asarray(jnp.inf)
-        c0 = (z0, inf, inf, jnp.asarray(0), jnp.asarray(0), jnp.asarray(True), fac, jnp.asarray(valid))
-        z, err, _, it, nfac, finite, fac, _ = jax.lax.while_loop(cond, body, c0)
-        err = jnp.where(finite, err, jnp.inf)
-        return z, it, nfac, err, fac
+        conv0 = jnp.isfinite(res0) & (res0 <= floor)
+        c0 = (z0, p0, ru0, g0, res0, jnp.asarray(jnp.inf), jnp.asarray(0), jnp.asarray(0), fac, jnp.asarray(valid),
+              conv0, jnp.isfinite(res0))
+        z, p, _, _, _, _, it, nfac, fac, _, conv, _ = jax.lax.while_loop(cond, body, c0)
+        return z, p, it, nfac, conv, fac
 
     @jax.custom_jvp
-    def newton(model, ctx, z0, fac, valid):
-        return _solve(model, ctx, z0, fac, valid)
+    def newton(model, ctx, z0, p0, fac, valid):
+        return _solve(model, ctx, z0, p0, fac, valid)
 
     @newton.defjvp
     def newton_jvp(primals, tangents):
-        model, ctx, z0, fac, valid = primals
+        model, ctx, z0, p0, fac, valid = primals
         dmodel, dctx = tangents[0], tangents[1]
-        out = newton(model, ctx, z0, fac, valid)
-        z = out[0]
-        _, dR = jax.jvp(lambda m, c: _residual(m, scheme, c, z)[0], (model, ctx), (dmodel, dctx))
-        _, Ke = _iteration_matrix(model, scheme, ctx, z)
-        dz = solver.solve(model, Ke, -dR)
-        return out, (dz, *(_zero_tangent(x) for x in out[1:]))
+        out = newton(model, ctx, z0, p0, fac, valid)
+        z, p = out[0], out[1]
+        _, (dru, dg) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p)[:2], (model, ctx), (dmodel, dctx))
+        dz, dp = _implicit_solve(model, solver, _system(model, scheme, ctx, z, p), dru, dg)
+        return out, (dz, dp, *(_zero_tangent(x) for x in out[2:]))
 
     return newton
+
+
+def _implicit_solve(model: Model, solver, sys, dru, dg):
+    """Solve the step's linearized equations J (dz, dp) = -(dru, dg) exactly (differentiable,
+    transposable): condensed for finite K; for K = inf a condensed solve with K_aug refined
+    by three sweeps of iterative refinement against the exact saddle-point operator."""
+    if not model.structure.mixed:
+        return solver.solve(model, sys.Ke, -dru), jnp.zeros_like(dg)
+    kpp = mdl.newton_kpp(model, sys.kpp)
+    Kc = mdl.condense(sys.Ke, sys.kup, kpp)
+
+    def approx(bu, bg):  # solves the system with kpp in place of the exact pressure block
+        dz = solver.solve(model, Kc, _condensed_rhs(model, -bu, -bg, sys.kup, kpp))
+        return dz, mdl.pressure_correction(model, -bg, sys.kup, kpp, mdl.expand(model, dz))
+
+    dz, dp = approx(-dru, -dg)
+    if model.structure.incompressible:
+        for _ in range(3):
+            ru, g = _apply_system(model, sys, dz, dp)
+            ez, ep = approx(-dru - ru, -dg - g)
+            dz, dp = dz + ez, dp + ep
+    return dz, dp
+
+
+def _apply_system(model: Model, sys, dz, dp):
+    """The exact linearized operator (K dz + T^T kup dp, kup . dq + kpp dp) of the mixed form."""
+    dq = mdl.expand(model, dz)
+    dqe = mdl.element_coordinates(model, dq).reshape(sys.kup.shape)
+    fu = jnp.einsum("eab,eb->ea", sys.Ke, dqe) + sys.kup * dp[:, None]
+    ru = mdl.reduce(model, mdl.scatter_slots(model, fu.reshape(-1, 32, 3)))
+    return ru, jnp.sum(sys.kup * dqe, axis=1) + sys.kpp * dp
 
 
 def _admissible(model: Model, ctx: _StepContext, z) -> jax.Array:
@@ -300,18 +479,6 @@ def _admissible(model: Model, ctx: _StepContext, z) -> jax.Array:
     J = jax.vmap(jax.vmap(det3))(F)
     H = mdl.gent_margins(model, q, ctx.state.Cv)
     return jnp.all(J > 0) & jnp.all(H > 0)
-
-
-def _backtrack(model: Model, ctx: _StepContext, z, dz, max_halvings: int = 12):
-    """Halve the Newton correction until the new iterate is admissible (safeguarded Newton:
-    keeps iterates out of inverted or past-Gent-limit states where the energy is undefined)."""
-
-    def cond(c):
-        a, k = c
-        return (~_admissible(model, ctx, z + a * dz)) & (k < max_halvings)
-
-    a, _ = jax.lax.while_loop(cond, lambda c: (0.5 * c[0], c[1] + 1), (jnp.asarray(1.0), 0))
-    return a * dz
 
 
 def _zero_tangent(x):
@@ -325,9 +492,11 @@ def _zero_tangent(x):
     return jax.tree_util.tree_map(leaf, x)
 
 
-def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), solver=None):
+def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), solver=None):
     """Return ``step(model, loading, state, t1, fac, valid) -> (state1, iterations,
-    factorizations, status, fac1)``. ``solver``: a linsolve solver (default DenseSolver)."""
+    factorizations, status, fac1)``: one step (no cut-back) from state.t to t1.
+    ``scheme``: GeneralizedAlpha or QuasiStatic; ``solver``: a linsolve solver (default
+    DenseSolver)."""
     solver = DenseSolver() if solver is None else solver
     newton = _make_newton(scheme, opts, solver)
 
@@ -342,32 +511,25 @@ def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions
             u1=loading.u(t1) if model.prescribed_dirs.shape[0] else jnp.zeros(0),
             f_ext=mdl.gravity_force(model),
         )
-        # predictor (Eq. 33)
-        b, am, af = scheme.beta, scheme.alpha_m, scheme.alpha_f
-        a0 = (af * state.qdd - am * state.a) / (1.0 - am)
-        if opts.predictor == "paper":
-            q_pred = state.q + h * state.v + h * h * (0.5 - b) * state.a + h * h * b * a0
-        elif opts.predictor == "velocity":
-            q_pred = state.q + h * state.v
-        else:
-            q_pred = state.q
-        z, it, nfac, err, fac = newton(model, ctx, q_pred[s.free], fac, valid)
+        q_pred = scheme.predict(state, h, opts.predictor)
+        p0 = mdl.initial_pressure(model) if state.p is None else state.p
+        z, p1, it, nfac, conv, fac = newton(model, ctx, q_pred[s.free], p0, fac, valid)
         q1 = mdl.full_coordinates(model, z, ctx.u1)
-        qdd1, v1, a1 = _kinematics(scheme, ctx, q1)
+        qdd1, v1, a1 = scheme.kinematics(state, h, q1)
         E = mdl.nominal_field(model, ctx.phi1)
-        _, Cv1 = mdl.internal_force(model, q1, E, state.Cv, h)
-        new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1)
+        _, Cv1 = mdl.internal_force(model, q1, E, state.Cv, h, p1)
+        new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1, p=p1)
         F = mdl.deformation_gradients(model, q1)
-        finite = jnp.all(jnp.isfinite(q1)) & jnp.all(jnp.isfinite(Cv1))
-        inverted = jnp.any(jnp.linalg.det(F) <= 0)
-        gent = jnp.min(mdl.gent_margins(model, q1, Cv1)) <= 0
+        finite = jnp.all(jnp.isfinite(q1)) & jnp.all(jnp.isfinite(Cv1)) & jnp.all(jnp.isfinite(p1))
+        inverted = jnp.any(jax.vmap(jax.vmap(det3))(F) <= 0)
+        gent = jnp.min(mdl.gent_margins(model, q1, Cv1)) <= GENT_LOCK_MARGIN
         # a step that did not converge is reported as such (its last iterate's state says
         # nothing reliable about Gent limits or inversion)
         status = jnp.where(
             ~finite,
             int(Status.NONFINITE),
             jnp.where(
-                err > opts.tol,
+                ~conv,
                 int(Status.NEWTON_FAILED),
                 jnp.where(inverted, int(Status.INVERTED), jnp.where(gent, int(Status.GENT_LIMIT), 0)),
             ),
@@ -382,8 +544,10 @@ def make_step(scheme: GeneralizedAlpha = GeneralizedAlpha(), opts: NewtonOptions
 
 
 class Carry(eqx.Module):
-    """Scan carry: state, status, first failed step, step offset (chunked runs), and the
-    iteration-matrix factorization reused across steps (with its validity flag)."""
+    """Scan carry: state, status, first failed user step, step offset (chunked runs), the
+    iteration-matrix factorization reused across steps (with its validity flag and the step
+    size it was made for), the next trial sub-step, the smallest accepted sub-step, and
+    the accepted sub-step times so far (the schedule a differentiated run replays)."""
 
     state: State
     status: jax.Array
@@ -391,32 +555,107 @@ class Carry(eqx.Module):
     step_offset: jax.Array
     fac: object
     fac_valid: jax.Array
+    h_fac: jax.Array
+    h_next: jax.Array
+    h_smallest: jax.Array
+    schedule: jax.Array
+    n_sub: jax.Array
 
 
-def initial_carry(model: Model, state: State, solver) -> Carry:
-    return Carry(state, jnp.asarray(0), jnp.asarray(-1), jnp.asarray(0), solver.empty(model), jnp.asarray(False))
+def _empty_fac(model: Model, solver):
+    if not model.structure.mixed:
+        return (solver.empty(model),)
+    n_el = model.dV.shape[0]
+    return solver.empty(model), jnp.zeros((n_el, 96)), -jnp.ones(n_el)
 
 
-def make_scan(step, output_fn: Callable):
+def initial_carry(model: Model, state: State, solver, max_substeps: int = 0) -> Carry:
+    inf = jnp.asarray(jnp.inf)
+    return Carry(state, jnp.asarray(0), jnp.asarray(-1), jnp.asarray(0), _empty_fac(model, solver), jnp.asarray(False),
+                 inf, inf, inf, jnp.zeros(max_substeps), jnp.asarray(0))
+
+
+def _same_step(h, h_fac):
+    return jnp.abs(h - h_fac) <= 1e-9 * h
+
+
+_RETRY = (int(Status.NEWTON_FAILED), int(Status.NONFINITE))
+
+
+def make_user_step(step, control: StepControl):
+    """Return ``user_step(model, loading, carry, t1) -> (carry, iterations, factorizations,
+    cutbacks)``: advance from carry.state.t to t1 in sub-steps, halving a failed sub-step
+    down to ``control.dt_min`` and doubling after easy ones (up to t1 - t_n)."""
+
+    def user_step(model, loading, c: Carry, t1):
+        t0 = c.state.t
+        dt = t1 - t0
+        can_cut = control.dt_min < dt
+
+        def cond(x):
+            c, *_ = x
+            return (c.state.t < t1) & (c.status == 0)
+
+        def body(x):
+            c, its, nfac, ncut = x
+            h = jnp.minimum(jnp.minimum(c.h_next, dt), t1 - c.state.t)
+            t_new = jnp.where(t1 - (c.state.t + h) <= 1e-9 * dt, t1, c.state.t + h)
+            h = t_new - c.state.t
+            new, it, nf, st, fac = step(model, loading, c.state, t_new, c.fac, c.fac_valid & _same_step(h, c.h_fac))
+            ok = st == 0
+            retry = (~ok) & can_cut & ((st == _RETRY[0]) | (st == _RETRY[1])) & (0.5 * h >= control.dt_min)
+            state = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, c.state)
+            grow = ok & (it <= control.grow_iterations)
+            h_next = jnp.where(ok, jnp.where(grow, 2.0 * h, h), 0.5 * h)
+            k = jnp.minimum(c.n_sub, c.schedule.shape[0] - 1)
+            schedule = jnp.where(ok, c.schedule.at[k].set(t_new), c.schedule)
+            c = Carry(state, jnp.where(ok | retry, 0, st), c.fail_step, c.step_offset, fac, ok, h,
+                      jnp.minimum(h_next, dt), jnp.where(ok, jnp.minimum(c.h_smallest, h), c.h_smallest), schedule,
+                      c.n_sub + ok.astype(int))
+            return c, its + it, nfac + nf, ncut + (~ok).astype(int)
+
+        zero = jnp.asarray(0)
+        c, its, nfac, ncut = jax.lax.while_loop(cond, body, (c, zero, zero, zero))
+        return c, its, nfac, ncut
+
+    return user_step
+
+
+def make_scan(step, output_fn: Callable, control: StepControl | None = None):
     """Return ``run(model, loading, carry, times, active) -> (carry, (outputs, iterations,
-    factorizations))``: lax.scan of ``step`` over the time grid ``times`` (n,), skipping
-    inactive entries (padding) and every step after a failure."""
+    factorizations, cutbacks, last_substep))``: lax.scan over the time grid ``times`` (n,),
+    skipping inactive entries (padding) and every step after a failure. With ``control``
+    each grid step is taken in sub-steps with cut-back (``make_user_step``); without it,
+    in one step (a failure is final)."""
+    user_step = make_user_step(step, control) if control is not None else None
 
     def run(model, loading, carry: Carry, times, active):
         def body(c: Carry, xs):
             t1, k, on = xs
 
             def do(c):
-                new, it, nfac, st, fac = step(model, loading, c.state, t1, c.fac, c.fac_valid)
+                if user_step is not None:
+                    c1, it, nfac, ncut = user_step(model, loading, c, t1)
+                    failed = c1.status != 0
+                    # after a failure the state stays at the last user-grid time
+                    state = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), c.state, c1.state)
+                    c1 = eqx.tree_at(lambda x: (x.state, x.fail_step), c1, (state, jnp.where(failed, k, c.fail_step)))
+                    return c1, (it, nfac, ncut)
+                h = t1 - c.state.t
+                new, it, nfac, st, fac = step(model, loading, c.state, t1, c.fac, c.fac_valid & _same_step(h, c.h_fac))
                 failed = st != 0
                 state = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), c.state, new)
-                return Carry(state, st, jnp.where(failed, k, c.fail_step), c.step_offset, fac, ~failed), (it, nfac)
+                c1 = Carry(state, st, jnp.where(failed, k, c.fail_step), c.step_offset, fac, ~failed, h, c.h_next,
+                           jnp.where(failed, c.h_smallest, jnp.minimum(c.h_smallest, h)), c.schedule,
+                           c.n_sub + (~failed).astype(int))
+                return c1, (it, nfac, jnp.asarray(0))
 
             def skip(c):
-                return c, (jnp.asarray(0), jnp.asarray(0))
+                zero = jnp.asarray(0)
+                return c, (zero, zero, zero)
 
-            c, (it, nfac) = jax.lax.cond((c.status == 0) & on, do, skip, c)
-            return c, (output_fn(model, loading, c.state), it, nfac)
+            c, (it, nfac, ncut) = jax.lax.cond((c.status == 0) & on, do, skip, c)
+            return c, (output_fn(model, loading, c.state), it, nfac, ncut, c.n_sub - 1)
 
         steps = jnp.arange(times.shape[0]) + carry.step_offset
         return jax.lax.scan(body, carry, (times, steps, active))
@@ -429,9 +668,11 @@ class Solution:
     """What ``simulate`` returns.
 
     time: (n+1,) s; outputs: name -> (n+1, ...) arrays (row 0 = initial state);
-    iterations: (n,) Newton iterations per step; factorizations: (n,) iteration-matrix
-    factorizations per step; status: Status; fail_time (s) and
-    fail_step (-1 if none); final: the last State (the last converged one after a failure).
+    iterations: (n,) Newton iterations per step (all sub-steps); factorizations: (n,)
+    iteration-matrix factorizations per step; cutbacks: (n,) failed sub-steps retried with
+    half the step; dt_smallest: the smallest step used (s); status: Status; fail_time (s)
+    and fail_step (-1 if none); final: the last State (the last converged one after a
+    failure).
     """
 
     time: jax.Array
@@ -441,6 +682,8 @@ class Solution:
     status: jax.Array
     fail_step: jax.Array
     final: State
+    cutbacks: jax.Array | None = None
+    dt_smallest: jax.Array | None = None
 
     @property
     def ok(self) -> bool:
@@ -451,6 +694,10 @@ class Solution:
         k = int(self.fail_step)
         return float(self.time[k + 1]) if k >= 0 else float("nan")
 
+    @property
+    def n_cutbacks(self) -> int:
+        return 0 if self.cutbacks is None else int(np.sum(np.asarray(self.cutbacks)))
+
     def check(self) -> "Solution":
         """Raise SimulationError naming what failed and when; return self otherwise."""
         if not self.ok:
@@ -460,7 +707,8 @@ class Solution:
 
 jax.tree_util.register_pytree_node(
     Solution,
-    lambda s: ((s.time, s.outputs, s.iterations, s.factorizations, s.status, s.fail_step, s.final), None),
+    lambda s: ((s.time, s.outputs, s.iterations, s.factorizations, s.status, s.fail_step, s.final, s.cutbacks,
+                s.dt_smallest), None),
     lambda _, c: Solution(*c),
 )
 
@@ -475,48 +723,109 @@ def time_grid(t_end: float, dt: float, t0: float = 0.0) -> np.ndarray:
     return np.linspace(t0, t_end, n + 1)
 
 
+def _default_max_substeps(n: int) -> int:
+    return n + max(128, n // 2)
+
+
 def simulate(
     model: Model,
     loading: Loading,
     times,
     output_fn: Callable,
-    scheme: GeneralizedAlpha = GeneralizedAlpha(),
+    scheme=GeneralizedAlpha(),
     newton: NewtonOptions = NewtonOptions(),
     solver=None,
     state0: State | None = None,
     pad_to: int | None = None,
+    control: StepControl | None = StepControl(),
 ) -> Solution:
     """Integrate over the time grid ``times`` (n+1,) in one jitted ``lax.scan``.
 
     Pure and differentiable (jax.jvp / jax.grad / jax.vmap) in ``model`` and
     ``loading`` arrays. ``output_fn(model, loading, state) -> dict`` is recorded at
     every grid time; it is a static argument (use a hashable callable object to share
-    compiled code between calls). ``pad_to`` (>= n) pads the scan with skipped steps so
-    that runs of different lengths share one compilation. The returned Solution carries
-    the status; call ``.check()`` to raise on failure.
+    compiled code between calls). ``scheme``: GeneralizedAlpha (default) or QuasiStatic.
+    ``control``: step cut-back (StepControl; None = off). ``pad_to`` (>= n) pads the scan
+    with skipped steps so that runs of different lengths share one compilation. The
+    returned Solution carries the status; call ``.check()`` to raise on failure.
+
+    Derivatives: the run's primal takes sub-steps where Newton needs them; a
+    differentiated run replays the accepted sub-steps as a fixed grid (one more forward
+    pass) and differentiates each step implicitly, so jvp and grad hold through cut-backs.
     """
     times = np.asarray(times, dtype=float) if not isinstance(times, jax.core.Tracer) else times
     n = times.shape[0] - 1
     m = n if pad_to is None else int(pad_to)
     if m < n:
         raise ValueError(f"pad_to = {m} is smaller than the number of steps {n}")
+    if control is not None and control.max_substeps is not None and control.max_substeps < m:
+        raise ValueError(f"StepControl.max_substeps = {control.max_substeps} is below the number of steps {m}")
     tt = jnp.concatenate([jnp.asarray(times[1:], dtype=float), jnp.full(m - n, times[-1])])
     active = jnp.arange(m) < n
-    sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), tt, active, output_fn, scheme, newton, solver, state0)
+    sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), tt, active, state0, output_fn=output_fn,
+                        scheme=scheme, newton=newton, solver=solver, control=control)
     outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)
     return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.factorizations[:n], sol.status, sol.fail_step,
-                    sol.final)
+                    sol.final, sol.cutbacks[:n], sol.dt_smallest)
 
 
 @eqx.filter_jit
-def _simulate_jit(model, loading, t0, times, active, output_fn, scheme, newton, solver, state0):
-    step = make_step(scheme, newton, solver)
-    run = make_scan(step, output_fn)
+def _simulate_jit(model, loading, t0, times, active, state0, *, output_fn, scheme, newton, solver, control):
     s0 = initial_state(model, loading, t0) if state0 is None else state0
-    carry, (outs, its, nfac) = run(model, loading, initial_carry(model, s0, step.solver), times, active)
+    res = _run(model, loading, s0, times, active, output_fn=output_fn, scheme=scheme, newton=newton, solver=solver,
+               control=control)
     out0 = output_fn(model, loading, s0)
-    outputs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, outs)
-    return Solution(times, outputs, its, nfac, carry.status, carry.fail_step, carry.state)
+    outputs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, res["outputs"])
+    return Solution(times, outputs, res["iterations"], res["factorizations"], res["status"], res["fail_step"],
+                    res["final"], res["cutbacks"], res["dt_smallest"])
+
+
+def _solver(solver):
+    return DenseSolver() if solver is None else solver
+
+
+@eqx.filter_custom_jvp
+def _run(model, loading, s0, times, active, *, output_fn, scheme, newton, solver, control):
+    """Primal run over the grid ``times`` (m,), with cut-back where ``control`` allows."""
+    solver = _solver(solver)
+    step = make_step(scheme, newton, solver)
+    budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0]))
+    carry = initial_carry(model, s0, solver, budget)
+    carry, (outs, its, nfac, ncut, last) = make_scan(step, output_fn, control)(model, loading, carry, times, active)
+    return dict(outputs=outs, iterations=its, factorizations=nfac, cutbacks=ncut, status=carry.status,
+                fail_step=carry.fail_step, final=carry.state, dt_smallest=carry.h_smallest, schedule=carry.schedule,
+                n_sub=carry.n_sub, last=last)
+
+
+@_run.def_jvp
+def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
+    model, loading, s0, times, active = primals
+    res = _run(model, loading, s0, times, active, output_fn=output_fn, scheme=scheme, newton=newton, solver=solver,
+               control=control)
+    if control is None:
+        grid, on, rows = times, active, jnp.arange(times.shape[0])
+        overflow = jnp.asarray(False)
+    else:  # replay the accepted sub-steps (a fixed grid) and pick the user's grid times from it
+        sched = jax.lax.stop_gradient(res["schedule"])
+        budget = sched.shape[0]
+        overflow = res["n_sub"] > budget
+        on = jnp.arange(budget) < res["n_sub"]
+        grid = jnp.where(on, sched, sched[jnp.maximum(res["n_sub"] - 1, 0)])
+        rows = jnp.clip(res["last"], 0, budget - 1)
+    step = make_step(scheme, newton, _solver(solver))
+    run = make_scan(step, output_fn)
+
+    def replay(model, loading, s0):
+        carry = initial_carry(model, s0, step.solver, 0)
+        carry, (outs, *_) = run(model, loading, carry, grid, on)
+        return jax.tree_util.tree_map(lambda a: a[rows], outs), carry.state
+
+    _, (d_outs, d_final) = eqx.filter_jvp(replay, (model, loading, s0), tangents[:3])
+    nan_if = lambda t: jax.tree_util.tree_map(lambda a: jnp.where(overflow, jnp.nan, a), t)
+    t_res = _zero_tangent(res)
+    t_res["outputs"] = nan_if(d_outs)
+    t_res["final"] = nan_if(d_final)
+    return res, t_res
 
 
 def run_chunked(
@@ -524,16 +833,17 @@ def run_chunked(
     loading: Loading,
     times,
     output_fn: Callable,
-    scheme: GeneralizedAlpha = GeneralizedAlpha(),
+    scheme=GeneralizedAlpha(),
     newton: NewtonOptions = NewtonOptions(),
     solver=None,
     chunk: int = 500,
     progress: Callable | None = None,
     snapshot_times=(),
+    control: StepControl | None = StepControl(),
 ):
-    """``simulate`` in jitted chunks of ``chunk`` steps: progress reports and full states at
-    chunk ends. Every chunk has the same compiled length (the last one is padded), so
-    there is one compilation.
+    """``simulate`` in jitted chunks of ``chunk`` steps (primal only): progress reports
+    and full states at chunk ends. Every chunk has the same compiled length (the last one
+    is padded), so there is one compilation.
 
     Args:
       progress: optional ``progress(steps_done, n_steps, t, wall_seconds)``.
@@ -546,12 +856,12 @@ def run_chunked(
     n = times.size - 1
     chunk = max(1, min(int(chunk), n))
     step = make_step(scheme, newton, solver)
-    run = eqx.filter_jit(make_scan(step, output_fn))
-    s0 = _initial_state_jit(model, loading, jnp.asarray(times[0]))
-    carry = initial_carry(model, s0, step.solver)
+    run = eqx.filter_jit(make_scan(step, output_fn, control))
+    s0 = eqx.filter_jit(initial_state)(model, loading, jnp.asarray(times[0]))
+    carry = initial_carry(model, s0, step.solver, 1 if control is not None else 0)
     snap_idx = sorted({int(np.argmin(np.abs(times - ts))) for ts in snapshot_times})
     snapshots = {0: s0} if 0 in snap_idx else {}
-    outs, its, facs = [], [], []
+    outs, its, facs, cuts = [], [], [], []
 
     def chunk_args(k):
         m = min(chunk, n - k)
@@ -568,13 +878,13 @@ def run_chunked(
     k = 0
     while k < n:
         m, tt, act = chunk_args(k)
-        carry, (o, it, nf) = compiled(model, loading, carry, tt, act)
+        carry, (o, it, nf, nc, _) = compiled(model, loading, carry, tt, act)
         outs.append(jax.tree_util.tree_map(lambda a: a[:m], o))
         its.append(it[:m])
         facs.append(nf[:m])
+        cuts.append(nc[:m])
         k += m
-        carry = Carry(
-            carry.state, carry.status, carry.fail_step, carry.step_offset + m, carry.fac, carry.fac_valid)
+        carry = eqx.tree_at(lambda c: c.step_offset, carry, carry.step_offset + m)
         for j in snap_idx:
             if k - m < j <= k and j not in snapshots:
                 snapshots[j] = carry.state
@@ -589,5 +899,5 @@ def run_chunked(
     outputs = jax.tree_util.tree_map(lambda a, *b: jnp.concatenate([a[None], *b]), out0, *outs)
     iterations = jnp.concatenate(its)
     sol = Solution(jnp.asarray(times[: iterations.shape[0] + 1]), outputs, iterations, jnp.concatenate(facs),
-                   carry.status, carry.fail_step, carry.state)
+                   carry.status, carry.fail_step, carry.state, jnp.concatenate(cuts), carry.h_smallest)
     return sol, snapshots, compile_s, run_s

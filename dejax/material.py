@@ -41,7 +41,8 @@ class Material(eqx.Module):
 
     Attributes:
       mu_inf: equilibrium shear modulus (Pa).
-      K_inf: equilibrium bulk modulus (Pa).
+      K_inf: equilibrium bulk modulus (Pa); ``inf`` (exact incompressibility) is allowed
+        with the mixed volumetric form only.
       Jm_inf: equilibrium Gent limit I_lim (-).
       eps: permittivity (F/m).
       rho: mass density (kg/m^3).
@@ -104,7 +105,8 @@ class Material(eqx.Module):
                 v = np.asarray(value, dtype=float)
             except Exception:  # traced: cannot check
                 continue
-            if not np.all(np.isfinite(v)):
+            finite = np.isfinite(v) | ((name == "K_inf") & (v == np.inf))  # K_inf = inf: incompressible
+            if not np.all(finite):
                 raise ValueError(f"Material parameter {name} = {v} is not finite")
             if np.any(v <= lower) if lower == 0.0 else np.any(v < lower):
                 raise ValueError(f"Material parameter {name} = {v} must be > {lower}")
@@ -152,17 +154,20 @@ def gent_margin(I1bar, Jm):
     return 1.0 - (I1bar - 3.0) / Jm
 
 
-def equilibrium_energy(F, E, mat: Material):
+def equilibrium_energy(F, E, mat: Material, bulk: bool = True):
     """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3.
 
-    With ``mat.eps_a != 0`` the permittivity depends on stretch (electrostriction, an
-    extension beyond the paper used by the sim-to-real diagnosis)."""
+    ``bulk=False`` leaves out the penalty K_inf/2 (J - 1)^2 (the mixed form supplies the
+    volumetric part itself, see ``mixed_free_energy``). With ``mat.eps_a != 0`` the
+    permittivity depends on stretch (electrostriction, an extension beyond the paper used
+    by the sim-to-real diagnosis)."""
     C = F.T @ F
     J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
     eps = mat.eps * (1.0 + mat.eps_a * (I1bar - 3.0))
     elec = -0.5 * eps * J * (E @ inv3(C) @ E)
-    return gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + 0.5 * mat.K_inf * (J - 1.0) ** 2 + elec
+    psi = gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + elec
+    return psi + 0.5 * mat.K_inf * (J - 1.0) ** 2 if bulk else psi
 
 
 def _viscous_invariants(F, Cv):
@@ -174,18 +179,40 @@ def _viscous_invariants(F, Cv):
     return Je, I1e
 
 
-def viscous_energy(F, Cv, mu, K, Jm):
-    """psi_s(F, Cv) of one viscous unit (Eq. 19). J/m^3."""
+def viscous_energy(F, Cv, mu, K, Jm, bulk: bool = True):
+    """psi_s(F, Cv) of one viscous unit (Eq. 19). J/m^3. ``bulk=False``: without K/2 (Je - 1)^2."""
     Je, I1e = _viscous_invariants(F, Cv)
-    return gent_energy(Je ** (-2.0 / 3.0) * I1e, mu, Jm) + 0.5 * K * (Je - 1.0) ** 2
+    psi = gent_energy(Je ** (-2.0 / 3.0) * I1e, mu, Jm)
+    return psi + 0.5 * K * (Je - 1.0) ** 2 if bulk else psi
 
 
-def free_energy(F, E, Cv, mat: Material):
-    """Total free energy psi = psi_inf + sum_s psi_s (Eq. 20). Cv: (n_units, 3, 3)."""
-    psi = equilibrium_energy(F, E, mat)
+def free_energy(F, E, Cv, mat: Material, bulk: bool = True):
+    """Total free energy psi = psi_inf + sum_s psi_s (Eq. 20). Cv: (n_units, 3, 3).
+
+    ``bulk=False``: the isochoric and electrostatic part only (no penalty bulk terms)."""
+    psi = equilibrium_energy(F, E, mat, bulk)
     if mat.n_units:
-        psi = psi + jnp.sum(jax.vmap(viscous_energy, in_axes=(None, 0, 0, 0, 0))(F, Cv, mat.mu, mat.K, mat.Jm))
+        unit = lambda Cv_s, mu, K, Jm: viscous_energy(F, Cv_s, mu, K, Jm, bulk)
+        psi = psi + jnp.sum(jax.vmap(unit)(Cv, mat.mu, mat.K, mat.Jm))
     return psi
+
+
+def bulk_modulus(mat: Material):
+    """K = K_inf + sum_s K_s (Pa): the bulk modulus of the mixed form.
+
+    The viscous flow keeps det Cv_s = 1, so Je = J and the paper's penalty terms add up to
+    K/2 (J - 1)^2. ``inf`` means exact incompressibility."""
+    return mat.K_inf + jnp.sum(mat.K)
+
+
+def mixed_free_energy(F, E, Cv, p, mat: Material):
+    """Perturbed-Lagrangian free energy psi_iso + p (J - 1) - p^2 / (2 K) (J/m^3).
+
+    p (Pa) is the pressure unknown (kept constant per element by the model); eliminating
+    it pointwise (p = K (J - 1)) gives back ``free_energy``. K = ``bulk_modulus(mat)``
+    may be ``inf``: then p is the Lagrange multiplier of J = 1."""
+    K = bulk_modulus(mat)
+    return free_energy(F, E, Cv, mat, bulk=False) + p * (det3(F) - 1.0) - 0.5 * p * p / K
 
 
 def min_gent_margin(F, Cv, mat: Material):
@@ -316,6 +343,26 @@ def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material):
 
     D, (P, Cv_new) = jax.jacfwd(f, has_aux=True)(F)
     return P, D, Cv_new
+
+
+def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material):
+    """Mixed form at one point: (P (3, 3) Pa, r_p = d psi / d p = J - 1 - p / K (-), Cv_new)."""
+    Cv_new = update_all_units(F, Cv_old, dt, mat)
+    P, r_p = jax.grad(mixed_free_energy, argnums=(0, 3))(F, E, Cv_new, p, mat)
+    return P, r_p, Cv_new
+
+
+def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material):
+    """Mixed form at one point: (P, r_p, D = dP/dF (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new).
+
+    D is the consistent tangent (dCv/dF included); dr_p/dF = dP/dp (= cof F)."""
+
+    def f(F_, p_):
+        P, r_p, Cv_new = mixed_stress_and_update(F_, E, Cv_old, dt, p_, mat)
+        return (P, r_p), (P, r_p, Cv_new)
+
+    ((D, P_p), (_, r_pp)), (P, r_p, Cv_new) = jax.jacfwd(f, argnums=(0, 1), has_aux=True)(F, p)
+    return P, r_p, D, P_p, r_pp, Cv_new
 
 
 def check_state(F, Cv, mat: Material, where: str = "") -> None:

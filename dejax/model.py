@@ -26,7 +26,8 @@ import numpy as np
 
 from . import element as el
 from .constraints import Constraints
-from .material import Material, free_energy, min_gent_margin, stress_and_update, stress_tangent_and_update
+from .material import (Material, bulk_modulus, free_energy, min_gent_margin, mixed_free_energy, mixed_stress_and_update,
+                       mixed_tangent_and_update, stress_and_update, stress_tangent_and_update)
 from .mesh import Mesh, Static
 
 
@@ -44,6 +45,12 @@ class Structure:
     gauss_order: int
     dof_scale: np.ndarray  # (n_free,) length scale of each free coordinate (m for positions, 1 for gradients)
     node_sets: dict
+    volumetric: str = "mixed"  # "mixed": element pressure unknowns (condensed); "displacement": penalty only
+    incompressible: bool = False  # K = inf (mixed form only): exact J = 1 constraint per element
+
+    @property
+    def mixed(self) -> bool:
+        return self.volumetric == "mixed"
 
     @property
     def n_free(self) -> int:
@@ -85,8 +92,25 @@ def build_model(
     gauss_order: int = 3,
     damping: float = 0.0,
     gravity=(0.0, 0.0, 0.0),
+    volumetric: str = "mixed",
 ) -> Model:
-    """Assemble a ``Model`` (differentiable in mesh arrays and material)."""
+    """Assemble a ``Model`` (differentiable in mesh arrays and material).
+
+    volumetric: "mixed" (default): a constant pressure per element kept as its own Newton
+      unknown (perturbed Lagrangian ``material.mixed_free_energy``), condensed element by
+      element so the global system stays in the element coordinates; allows K = inf.
+      "displacement": the paper's pointwise penalty K/2 (J - 1)^2 (locks and converges
+      poorly for K/mu >~ 1e3 on the ANCF element; kept for the Chrono element checks).
+    """
+    if volumetric not in ("mixed", "displacement"):
+        raise ValueError(f"volumetric must be 'mixed' or 'displacement', got {volumetric!r}")
+    incompressible = False
+    try:
+        incompressible = bool(np.isinf(np.asarray(bulk_modulus(material))))
+    except jax.errors.TracerArrayConversionError:
+        pass
+    if incompressible and volumetric != "mixed":
+        raise ValueError("K = inf (exact incompressibility) needs volumetric='mixed'")
     if constraints is None:
         constraints = Constraints(mesh.n_dofs)
     if constraints.n_dofs != mesh.n_dofs:
@@ -126,6 +150,8 @@ def build_model(
         gauss_order=int(gauss_order),
         dof_scale=dof_scale,
         node_sets=dict(mesh.node_sets),
+        volumetric=volumetric,
+        incompressible=incompressible,
     )
     pot = mesh.potential[:, conn, :]  # (n_ch, n_el, 8, 4)
     pot = pot.reshape(pot.shape[0], pot.shape[1], 32)
@@ -207,46 +233,143 @@ def initial_viscous_state(model: Model) -> jax.Array:
     return jnp.broadcast_to(jnp.eye(3), (n_el, n_gp, model.material.n_units, 3, 3))
 
 
-def _per_point(fn, model):
+def _per_point(fn):
+    """vmap a point function fn(F, E, Cv_old, dt, mat) over elements and Gauss points."""
     return jax.vmap(jax.vmap(fn, in_axes=(0, 0, 0, None, None)), in_axes=(0, 0, 0, None, None))
 
 
-def internal_force(model: Model, q, E, Cv_old, dt):
-    """Internal force and the viscous state it implies at the end of a step.
+def _per_point_mixed(fn):
+    """vmap fn(F, E, Cv_old, dt, p, mat) with one pressure per element (n_el,)."""
+    inner = jax.vmap(fn, in_axes=(0, 0, 0, None, None, None))
+    return jax.vmap(inner, in_axes=(0, 0, 0, None, 0, None))
+
+
+def initial_pressure(model: Model) -> jax.Array:
+    """(n_el,) element pressures at rest (Pa): zero."""
+    return jnp.zeros(model.dV.shape[0])
+
+
+def _pressure(model: Model, p):
+    return initial_pressure(model) if p is None else p
+
+
+def _nodal(model: Model, P):
+    """(n_el, 32, 3) element force vectors sum_g dV_g G_g P_g from stresses (n_el, n_gp, 3, 3)."""
+    return jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
+
+
+def element_forces(model: Model, q, E, Cv_old, dt, p=None):
+    """Element force vectors, pressure residuals and the viscous state at the end of a step.
 
     Args:
-      q: (n_dofs,) coordinates; E: (n_el, n_gp, 3) nominal field; Cv_old:
-      (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s).
+      q: (n_dofs,) coordinates; E: (n_el, n_gp, 3) nominal field (V/m); Cv_old:
+      (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s); p: (n_el,) element
+      pressures (Pa, mixed form; None = 0).
     Returns:
-      f (n_dofs,) in N, Cv_new like Cv_old.
+      fe (n_el, 32, 3) in N (N m for gradient slots), g (n_el,) = int (J - 1 - p/K) dV in
+      m^3 (None in the displacement form), Cv_new like Cv_old.
     """
     F = deformation_gradients(model, q)
-    P, Cv_new = _per_point(stress_and_update, model)(F, E, Cv_old, dt, model.material)
-    fe = jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
+    if not model.structure.mixed:
+        P, Cv_new = _per_point(stress_and_update)(F, E, Cv_old, dt, model.material)
+        return _nodal(model, P), None, Cv_new
+    P, r_p, Cv_new = _per_point_mixed(mixed_stress_and_update)(F, E, Cv_old, dt, _pressure(model, p), model.material)
+    return _nodal(model, P), jnp.sum(model.dV * r_p, axis=1), Cv_new
+
+
+def internal_force(model: Model, q, E, Cv_old, dt, p=None):
+    """Internal force (n_dofs,) in N and the viscous state it implies at the end of a step
+    (arguments as ``element_forces``)."""
+    fe, _, Cv_new = element_forces(model, q, E, Cv_old, dt, p)
     return scatter_slots(model, fe), Cv_new
 
 
-def internal_force_at(model: Model, q, E, Cv):
+def internal_force_at(model: Model, q, E, Cv, p=None):
     """(n_dofs,) internal force with the viscous state Cv held fixed (no update)."""
     F = deformation_gradients(model, q)
-    grad = jax.grad(free_energy, argnums=0)
-    P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
-    fe = jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
-    return scatter_slots(model, fe)
+    if model.structure.mixed:
+        grad = jax.grad(mixed_free_energy, argnums=0)
+        pg = jnp.broadcast_to(_pressure(model, p)[:, None], model.dV.shape)
+        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))(F, E, Cv, pg, model.material)
+    else:
+        grad = jax.grad(free_energy, argnums=0)
+        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
+    return scatter_slots(model, _nodal(model, P))
 
 
-def element_tangents(model: Model, q, E, Cv_old, dt):
-    """Element force vectors and consistent tangents.
+class ElementSystem(eqx.Module):
+    """Element equations at one iterate (mixed form: u and the element pressure p).
 
-    Returns:
-      fe (n_el, 32, 3), Ke (n_el, 96, 96), Cv_new.
+    fe (n_el, 32, 3) forces; Ke (n_el, 96, 96) = d fe / d e; g (n_el,) pressure residuals
+    (m^3); kup (n_el, 96) = d fe / d p = d g / d e (m^2 per unit of coordinate); kpp
+    (n_el,) = d g / d p (m^3/Pa, -V/K; 0 for K = inf); g, kup, kpp are None in the
+    displacement form. Cv_new: the viscous state implied by this iterate.
     """
+
+    fe: jax.Array
+    Ke: jax.Array
+    g: jax.Array | None
+    kup: jax.Array | None
+    kpp: jax.Array | None
+    Cv_new: jax.Array
+
+
+def element_system(model: Model, q, E, Cv_old, dt, p=None) -> ElementSystem:
+    """Element forces and consistent tangents (arguments as ``element_forces``)."""
     F = deformation_gradients(model, q)
-    P, D, Cv_new = _per_point(stress_tangent_and_update, model)(F, E, Cv_old, dt, model.material)
-    fe = jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
-    Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G)
-    n_el = Ke.shape[0]
-    return fe, Ke.reshape(n_el, 96, 96), Cv_new
+    n_el = F.shape[0]
+    if not model.structure.mixed:
+        P, D, Cv_new = _per_point(stress_tangent_and_update)(F, E, Cv_old, dt, model.material)
+        Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G)
+        return ElementSystem(_nodal(model, P), Ke.reshape(n_el, 96, 96), None, None, None, Cv_new)
+    P, r_p, D, P_p, r_pp, Cv_new = _per_point_mixed(mixed_tangent_and_update)(
+        F, E, Cv_old, dt, _pressure(model, p), model.material)
+    Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G).reshape(n_el, 96, 96)
+    kup = _nodal(model, P_p).reshape(n_el, 96)
+    return ElementSystem(_nodal(model, P), Ke, jnp.sum(model.dV * r_p, axis=1), kup, jnp.sum(model.dV * r_pp, axis=1),
+                         Cv_new)
+
+
+AUGMENTED_BULK = 1e4
+"""K = inf: the condensed Newton matrix uses K = AUGMENTED_BULK x (mu_inf + sum mu_s) in
+place of the missing pressure stiffness (the residual keeps J = 1 exactly; the iterates
+then approach it at a rate of about 1 / AUGMENTED_BULK per iteration)."""
+
+
+def newton_kpp(model: Model, kpp):
+    """(n_el,) pressure stiffness used to condense the Newton matrix: kpp itself for a
+    finite bulk modulus, -V_e / K_aug for K = inf (see AUGMENTED_BULK)."""
+    if not model.structure.incompressible:
+        return kpp
+    mat = model.material
+    K_aug = AUGMENTED_BULK * (mat.mu_inf + jnp.sum(mat.mu))
+    return -jnp.sum(model.dV, axis=1) / K_aug
+
+
+def condense(Ke, kup, kpp):
+    """Static condensation of the element pressures: Ke - kup kup^T / kpp (n_el, 96, 96)."""
+    return Ke - jnp.einsum("ea,eb->eab", kup, kup) / kpp[:, None, None]
+
+
+def condensed_force(fe, g, kup, kpp):
+    """(n_el, 32, 3) condensed element right-hand side fe - kup g / kpp."""
+    return fe - (kup * (g / kpp)[:, None]).reshape(fe.shape)
+
+
+def pressure_correction(model: Model, g, kup, kpp, dq):
+    """(n_el,) pressure correction dp = -(g + kup . dq_e) / kpp for a coordinate change dq (n_dofs,)."""
+    dqe = element_coordinates(model, dq).reshape(kup.shape)
+    return -(g + jnp.sum(kup * dqe, axis=1)) / kpp
+
+
+def element_tangents(model: Model, q, E, Cv_old, dt, p=None):
+    """Element force vectors and consistent tangents: fe (n_el, 32, 3), Ke (n_el, 96, 96),
+    Cv_new. In the mixed form Ke is the tangent with the element pressures condensed
+    (exact for finite K)."""
+    sys = element_system(model, q, E, Cv_old, dt, p)
+    if not model.structure.mixed:
+        return sys.fe, sys.Ke, sys.Cv_new
+    return sys.fe, condense(sys.Ke, sys.kup, newton_kpp(model, sys.kpp)), sys.Cv_new
 
 
 def mass_apply(model: Model, x: jax.Array) -> jax.Array:
@@ -283,10 +406,16 @@ def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:
 # ----------------------------------------------------------------------------- energies
 
 
-def free_energy_total(model: Model, q, E, Cv) -> jax.Array:
-    """Total free energy sum_g dV psi (J), electrostatic part included."""
+def free_energy_total(model: Model, q, E, Cv, p=None) -> jax.Array:
+    """Total free energy sum_g dV psi (J), electrostatic part included (mixed form: the
+    perturbed-Lagrangian energy at the element pressures p, None = 0)."""
     F = deformation_gradients(model, q)
-    psi = jax.vmap(jax.vmap(free_energy, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
+    if model.structure.mixed:
+        pg = jnp.broadcast_to(_pressure(model, p)[:, None], model.dV.shape)
+        fn = jax.vmap(jax.vmap(mixed_free_energy, in_axes=(0, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))
+        psi = fn(F, E, Cv, pg, model.material)
+    else:
+        psi = jax.vmap(jax.vmap(free_energy, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
     return jnp.sum(model.dV * psi)
 
 

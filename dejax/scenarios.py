@@ -346,7 +346,7 @@ class _UniaxialOutputs:
     def __call__(self, model, loading, state):
         phi = loading.phi(state.t) if loading.voltages else jnp.zeros(model.field_dirs.shape[0])
         E = mdl.nominal_field(model, phi)
-        R = (mdl.mass_apply(model, state.qdd + model.damping * state.v) + mdl.internal_force_at(model, state.q, E, state.Cv)
+        R = (mdl.mass_apply(model, state.qdd + model.damping * state.v) + mdl.internal_force_at(model, state.q, E, state.Cv, state.p)
              - mdl.gravity_force(model))
         idx = 12 * jnp.asarray(self.face)
         top = 12 * jnp.asarray(self.top) + 2
@@ -368,6 +368,7 @@ def uniaxial(
     shape=(1, 1, 1),
     gauss_order: int = 3,
     damping: float = 0.0,
+    volumetric: str = "mixed",
 ) -> Problem:
     """Stretch-controlled uniaxial tension of a film (a material test).
 
@@ -385,7 +386,7 @@ def uniaxial(
     x1 = mesh.nodes("x1")
     c = c.fix(np.concatenate([cs.dof_index(x1, 2, 0), cs.dof_index(x1, 3, 0)]))  # face stays normal to x
     c = c.prescribe(cs.dof_index(x1, 0, 0), lx)  # x = lx + u(t) lx with u = stretch - 1
-    model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping, volumetric=volumetric)
     loading = it.Loading(voltages=(voltage,) if voltage is not None else (), motions=(_MinusOne(stretch),))
     params = dict(scenario="uniaxial", lx=lx, ly=ly, lz=lz, mesh=list(shape), gauss_order=gauss_order,
                   damping=damping, **_material_params(material))

@@ -53,7 +53,7 @@ def _vib_out(model, loading, st):
     return {
         "z": st.q[model.structure.free],
         "ke": mdl.kinetic_energy(model, st.v),
-        "pe": mdl.free_energy_total(model, st.q, E, st.Cv),
+        "pe": mdl.free_energy_total(model, st.q, E, st.Cv, st.p),
     }
 
 
@@ -74,7 +74,7 @@ class Vibration:
         c = cs.Constraints(m.n_dofs).fix(cs.face_dofs(m.nodes("x0"), 0, [0, 1, 2]))
         # K = 2 mu: the bulk modes are not much stiffer than the shear modes; eps = 0
         mat = mat_.Material(67e3, 2 * 67e3, 100.0, 0.0, 1100.0)
-        self.model = mdl.build_model(m, mat, c, gauss_order=3)
+        self.model = mdl.build_model(m, mat, c, gauss_order=3, volumetric="displacement")
         self.load = it.Loading(voltages=(loads.Constant(0.0),))
         s = self.model.structure
         self.free = s.free
