@@ -39,7 +39,7 @@ def _run_case(name, problem, t_end, dt, max_steps, solver="auto", newton=it.Newt
     n = n_full if max_steps is None else min(n_full, int(max_steps))
     solv = linsolve.choose_solver(problem.model.structure, solver)
     sol, _, compile_s, run_s = it.run_chunked(
-        problem.model, problem.loading, times[: n + 1], problem.output_fn, it.GeneralizedAlpha(problem.rho_inf),
+        problem.model, problem.loading, times[: n + 1], problem.output_fn, problem.scheme(),
         newton, solv, chunk=min(250, n),
     )
     iters = np.asarray(sol.iterations)
@@ -137,11 +137,17 @@ def format_table(rows) -> str:
     return "\n".join(lines)
 
 
-def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.json", dt=1e-4) -> int:
+def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.json", dt=1e-4, select=(),
+         torsional_mesh=(48, 8, 2)) -> int:
     rows, extra = [], {}
     for c in cases:
         sys.stderr.write(f"running {c} ...\n")
-        if c == "B1":
+        if c == "robust":
+            from . import robust
+
+            extra["robust"] = robust.run(select, lambda name: sys.stderr.write(f"  {name}\n"), torsional_mesh)
+            print(robust.format_table(extra["robust"]))
+        elif c == "B1":
             rows.append(case_B1(max_steps))
         elif c == "R1":
             rows.append(case_R("R1", (4, 8, 1), max_steps, dt))
@@ -155,10 +161,12 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
             rows += srows
             extra["S1_exponent"] = slope
         else:
-            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1")
-    print(format_table(rows))
+            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1 robust")
+    if rows:
+        print(format_table(rows))
     for k, v in extra.items():
-        print(f"{k}: {v:.3f}")
+        if k != "robust":
+            print(f"{k}: {v:.3f}")
     if json_path:
         with open(json_path, "w") as f:
             json.dump({"rows": rows, **extra, "device": str(jax.devices()[0])}, f, indent=2, default=float)
@@ -166,10 +174,20 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
 
 
 def register(sub):
-    p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1), table + JSON")
-    p.add_argument("--cases", default="B1,R1,R2,G1,S1", help="comma-separated subset of B1,R1,R2,G1,S1")
+    p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1) and the robustness matrix, table + JSON")
+    p.add_argument("--cases", default="B1,R1,R2,G1,S1",
+                   help="comma-separated subset of B1,R1,R2,G1,S1, or robust (the solver robustness matrix)")
+    p.add_argument("--select", default="", help="robust: keep the cases whose name contains one of these "
+                                                "comma-separated substrings (e.g. 'uniaxial,block')")
+    p.add_argument("--torsional-mesh", type=_mesh, default=(48, 8, 2), help="robust: torsional strip mesh")
     p.add_argument("--max-steps", type=int, default=None, help="run at most N steps per case and project")
     p.add_argument("--dt", type=float, default=1e-4, help="time step of the tube cases (s)")
     p.add_argument("--json", default="bench.json", help="where to write the JSON table")
     p.set_defaults(func=lambda a: main(tuple(c.strip() for c in a.cases.split(",") if c.strip()), a.max_steps,
-                                       a.json, a.dt))
+                                       a.json, a.dt, tuple(s for s in a.select.split(",") if s), a.torsional_mesh))
+
+
+def _mesh(text):
+    from .cli import _mesh_shape
+
+    return _mesh_shape(text)

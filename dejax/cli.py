@@ -66,7 +66,17 @@ def _common_solver_args(p):
     p.add_argument("--rho-inf", type=_rho_inf, default=0.8, help="generalized-alpha spectral radius (default 0.8)")
     p.add_argument("--damping", type=_nonneg("--damping"), default=0.0, help="structural damping c_d (1/s), C = c_d M")
     p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5), help="Gauss points per direction")
-    p.add_argument("--newton-tol", type=_positive("--newton-tol"), default=1e-9, help="Newton tolerance (strain-like)")
+    p.add_argument("--newton-tol", type=_positive("--newton-tol"), default=1e-6,
+                   help="Newton tolerance: relative residual (default 1e-6), or the largest correction "
+                        "(strain-like) with --newton-criterion correction")
+    p.add_argument("--newton-criterion", default="residual", choices=("residual", "correction"),
+                   help="Newton convergence test (default residual)")
+    p.add_argument("--no-line-search", action="store_true", help="plain Newton steps (admissibility safeguard only)")
+    p.add_argument("--dt-min", type=_positive("--dt-min"), default=1e-6,
+                   help="smallest step of the cut-back (s, default 1e-6); a failure at dt-min is final")
+    p.add_argument("--quasi-static", action="store_true", help="no inertia (equilibrium at every step)")
+    p.add_argument("--volumetric", default="mixed", choices=("mixed", "displacement"),
+                   help="volumetric treatment: element pressure (mixed, default) or the paper's pointwise penalty")
     p.add_argument("--out", required=True, help="results file (HDF5), written atomically")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
@@ -169,16 +179,19 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         problem.loading,
         times,
         problem.output_fn,
-        it.GeneralizedAlpha(args.rho_inf),
-        it.NewtonOptions(tol=args.newton_tol),
+        problem.scheme(args.rho_inf, True if args.quasi_static else None),
+        it.NewtonOptions(tol=args.newton_tol, criterion=args.newton_criterion, line_search=not args.no_line_search),
         linsolve.choose_solver(problem.model.structure, solver),
         chunk=min(500, len(times) - 1),
         progress=_progress(args.quiet),
         snapshot_times=(float(times[-1]),),
+        control=it.StepControl(dt_min=args.dt_min),
     )
     iters = np.asarray(sol.iterations)
     if not sol.ok:
-        err = it.SimulationError(it.Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1)
+        detail = (f"the failing step was cut back {int(np.asarray(sol.cutbacks)[int(sol.fail_step)])} times, down to "
+                  f"dt = {args.dt_min:g} s" if sol.n_cutbacks and int(sol.fail_step) >= 0 else "")
+        err = it.SimulationError(it.Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1, detail)
         print(f"dejax: error: {err} (no results file written)", file=sys.stderr)
         return 1
     n = len(times) - 1
@@ -188,6 +201,10 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         t_end=t_end,
         rho_inf=args.rho_inf,
         newton_tol=args.newton_tol,
+        newton_criterion=args.newton_criterion,
+        quasi_static=bool(args.quasi_static or problem.quasi_static),
+        cutbacks=sol.n_cutbacks,
+        dt_smallest=float(sol.dt_smallest),
         compile_s=compile_s,
         run_s=run_s,
         newton_mean=float(iters.mean()),
@@ -199,7 +216,8 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     finals = ", ".join(f"{k} = {float(np.asarray(sol.outputs[k])[-1]):.6g}" for k in summary_outputs)
     print(
         f"{problem.name}: {n} steps to t = {t_end:g} s, compile {compile_s:.1f} s, run {run_s:.2f} s "
-        f"({n / max(run_s, 1e-9):.0f} steps/s), Newton {iters.mean():.2f} mean / {iters.max()} max; "
+        f"({n / max(run_s, 1e-9):.0f} steps/s), Newton {iters.mean():.2f} mean / {iters.max()} max, "
+        f"{sol.n_cutbacks} cut-backs (smallest dt {float(sol.dt_smallest):.3g} s); "
         f"final {finals} -> {args.out}"
     )
     return 0
@@ -232,6 +250,7 @@ def _cmd_run(args):
             t_ramp=args.t_ramp,
             gauss_order=args.gauss or 3,
             damping=args.damping,
+            volumetric=args.volumetric,
         )
         return _run_problem(problem, args.t_end, args.dt or 1e-3, args, ["lateral_stretch"])
     if args.scenario == "rolled":
@@ -250,14 +269,15 @@ def _cmd_run(args):
             over.setdefault("Jm", [5.0] * n)
         material = scenarios.rolled_material(args.model, **over)
         problem = scenarios.rolled(material, args.freq, args.phi_max, h=args.h, r=args.r, L=args.L, shape=args.mesh,
-                                   gauss_order=args.gauss or 3, damping=args.damping, point=args.point)
+                                   gauss_order=args.gauss or 3, damping=args.damping, point=args.point,
+                                   volumetric=args.volumetric)
         problem.params["model"] = args.model
         return _run_problem(problem, args.cycles / args.freq, args.dt or 1e-4, args, ["x_P"], args.solver)
     if args.scenario == "torsional":
         from . import scenarios
 
         problem = scenarios.torsional(args.phibar_max, args.t_ramp, viscous=args.viscous, shape=args.mesh,
-                                      gauss_order=args.gauss or 3, damping=args.damping)
+                                      gauss_order=args.gauss or 3, damping=args.damping, volumetric=args.volumetric)
         return _run_problem(problem, args.t_end or args.t_ramp, args.dt or 1e-2, args, ["twist_angle"], args.solver)
     raise AssertionError(args.scenario)
 

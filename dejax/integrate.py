@@ -230,7 +230,7 @@ class Loading(eqx.Module):
 
 class State(eqx.Module):
     """Time-stepping state: t (s), q, v, qdd, a (n_dofs,), Cv (n_el, n_gp, n_units, 3, 3),
-    p (n_el,) element pressures (Pa; mixed form, None = 0)."""
+    p (n_el, n_p) element pressure unknowns (Pa; mixed form, None = 0)."""
 
     t: jax.Array
     q: jax.Array
@@ -288,7 +288,7 @@ def _step_terms(model: Model, scheme, ctx: _StepContext, z):
 
 def _residual(model: Model, scheme, ctx: _StepContext, z, p):
     """Eq. (28) at q_{n+1}(z), p: reduced forces (n_free,), element volume residuals
-    (n_el,; zeros in the displacement form) and the updated Cv."""
+    (n_el, n_p; empty in the displacement form) and the updated Cv."""
     q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
     fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.state.Cv, h, p)
     g = jnp.zeros_like(p) if g is None else g
@@ -336,7 +336,7 @@ def _condensed_rhs(model: Model, ru, g, kup, kpp):
     """-(reduced condensed force): -(ru - T^T kup g / kpp) (n_free,)."""
     if not model.structure.mixed:
         return -ru
-    corr = mdl.scatter_slots(model, (kup * (g / kpp)[:, None]).reshape(-1, 32, 3))
+    corr = mdl.scatter_slots(model, mdl.pressure_force(kup, kpp, g).reshape(-1, 32, 3))
     return -(ru - mdl.reduce(model, corr))
 
 
@@ -465,10 +465,10 @@ def _implicit_solve(model: Model, solver, sys, dru, dg):
 def _apply_system(model: Model, sys, dz, dp):
     """The exact linearized operator (K dz + T^T kup dp, kup . dq + kpp dp) of the mixed form."""
     dq = mdl.expand(model, dz)
-    dqe = mdl.element_coordinates(model, dq).reshape(sys.kup.shape)
-    fu = jnp.einsum("eab,eb->ea", sys.Ke, dqe) + sys.kup * dp[:, None]
+    dqe = mdl.element_coordinates(model, dq).reshape(sys.Ke.shape[0], 96)
+    fu = jnp.einsum("eab,eb->ea", sys.Ke, dqe) + jnp.einsum("eka,ek->ea", sys.kup, dp)
     ru = mdl.reduce(model, mdl.scatter_slots(model, fu.reshape(-1, 32, 3)))
-    return ru, jnp.sum(sys.kup * dqe, axis=1) + sys.kpp * dp
+    return ru, jnp.einsum("eka,ea->ek", sys.kup, dqe) + jnp.einsum("ekl,el->ek", sys.kpp, dp)
 
 
 def _admissible(model: Model, ctx: _StepContext, z) -> jax.Array:
@@ -565,8 +565,8 @@ class Carry(eqx.Module):
 def _empty_fac(model: Model, solver):
     if not model.structure.mixed:
         return (solver.empty(model),)
-    n_el = model.dV.shape[0]
-    return solver.empty(model), jnp.zeros((n_el, 96)), -jnp.ones(n_el)
+    n_el, n_p = model.dV.shape[0], model.structure.n_pressure
+    return solver.empty(model), jnp.zeros((n_el, n_p, 96)), -jnp.broadcast_to(jnp.eye(n_p), (n_el, n_p, n_p))
 
 
 def initial_carry(model: Model, state: State, solver, max_substeps: int = 0) -> Carry:

@@ -45,12 +45,18 @@ class Structure:
     gauss_order: int
     dof_scale: np.ndarray  # (n_free,) length scale of each free coordinate (m for positions, 1 for gradients)
     node_sets: dict
-    volumetric: str = "mixed"  # "mixed": element pressure unknowns (condensed); "displacement": penalty only
-    incompressible: bool = False  # K = inf (mixed form only): exact J = 1 constraint per element
+    volumetric: str = "mixed"  # "mixed" (linear pressure), "mixed-constant", "displacement" (penalty only)
+    incompressible: bool = False  # K = inf (mixed forms only): exact volume constraints per element
+    pressure_basis: np.ndarray | None = None  # (n_gp, n_p) pressure shape functions at the Gauss points
 
     @property
     def mixed(self) -> bool:
-        return self.volumetric == "mixed"
+        return self.volumetric != "displacement"
+
+    @property
+    def n_pressure(self) -> int:
+        """Pressure unknowns per element: 4 (1, xi, eta, zeta), 1 (constant) or 0."""
+        return 0 if self.pressure_basis is None else int(self.pressure_basis.shape[1])
 
     @property
     def n_free(self) -> int:
@@ -96,14 +102,17 @@ def build_model(
 ) -> Model:
     """Assemble a ``Model`` (differentiable in mesh arrays and material).
 
-    volumetric: "mixed" (default): a constant pressure per element kept as its own Newton
-      unknown (perturbed Lagrangian ``material.mixed_free_energy``), condensed element by
-      element so the global system stays in the element coordinates; allows K = inf.
-      "displacement": the paper's pointwise penalty K/2 (J - 1)^2 (locks and converges
-      poorly for K/mu >~ 1e3 on the ANCF element; kept for the Chrono element checks).
+    volumetric: "mixed" (default): a pressure field linear in the element's natural
+      coordinates (p = p0 + p1 xi + p2 eta + p3 zeta, four unknowns per element) kept as its
+      own Newton unknown (perturbed Lagrangian ``material.mixed_free_energy``) and condensed
+      element by element, so the global system stays in the element coordinates; allows
+      K = inf. "mixed-constant": one constant pressure per element (mean dilatation: too
+      soft in bending with one element through a thickness). "displacement": the paper's
+      pointwise penalty K/2 (J - 1)^2 (locks, and converges poorly for K/mu >~ 1e3 on the
+      ANCF element without a line search; kept for the Chrono element checks).
     """
-    if volumetric not in ("mixed", "displacement"):
-        raise ValueError(f"volumetric must be 'mixed' or 'displacement', got {volumetric!r}")
+    if volumetric not in ("mixed", "mixed-constant", "displacement"):
+        raise ValueError(f"volumetric must be 'mixed', 'mixed-constant' or 'displacement', got {volumetric!r}")
     incompressible = False
     try:
         incompressible = bool(np.isinf(np.asarray(bulk_modulus(material))))
@@ -137,6 +146,9 @@ def build_model(
         for group in constraints.ties:
             if np.ptp(q0_np[group]) > 1e-12 * max(1.0, np.max(np.abs(q0_np[group]))):
                 raise ValueError(f"tied coordinates {group[:4]}... have different reference values")
+    points, _ = el.gauss_rule(int(gauss_order))
+    basis = {"mixed": np.concatenate([np.ones((points.shape[0], 1)), points], axis=1),
+             "mixed-constant": np.ones((points.shape[0], 1)), "displacement": None}[volumetric]
     is_pos = (free % 12) < 3
     dof_scale = np.where(is_pos, ell, 1.0)
     structure = Structure(
@@ -152,6 +164,7 @@ def build_model(
         node_sets=dict(mesh.node_sets),
         volumetric=volumetric,
         incompressible=incompressible,
+        pressure_basis=basis,
     )
     pot = mesh.potential[:, conn, :]  # (n_ch, n_el, 8, 4)
     pot = pot.reshape(pot.shape[0], pot.shape[1], 32)
@@ -239,18 +252,29 @@ def _per_point(fn):
 
 
 def _per_point_mixed(fn):
-    """vmap fn(F, E, Cv_old, dt, p, mat) with one pressure per element (n_el,)."""
-    inner = jax.vmap(fn, in_axes=(0, 0, 0, None, None, None))
+    """vmap fn(F, E, Cv_old, dt, p, mat) over elements and Gauss points (p per point)."""
+    inner = jax.vmap(fn, in_axes=(0, 0, 0, None, 0, None))
     return jax.vmap(inner, in_axes=(0, 0, 0, None, 0, None))
 
 
 def initial_pressure(model: Model) -> jax.Array:
-    """(n_el,) element pressures at rest (Pa): zero."""
-    return jnp.zeros(model.dV.shape[0])
+    """(n_el, n_p) element pressure unknowns at rest (Pa): zero (n_p = 0 in the displacement form)."""
+    return jnp.zeros((model.dV.shape[0], model.structure.n_pressure))
 
 
-def _pressure(model: Model, p):
-    return initial_pressure(model) if p is None else p
+def _basis(model: Model):
+    return jnp.asarray(model.structure.pressure_basis)
+
+
+def pressure_at_points(model: Model, p) -> jax.Array:
+    """(n_el, n_gp) pressure (Pa) at the Gauss points from the element unknowns p (n_el, n_p)."""
+    p = initial_pressure(model) if p is None else p
+    return jnp.einsum("ek,gk->eg", p, _basis(model))
+
+
+def pressure_mass(model: Model) -> jax.Array:
+    """(n_el, n_p, n_p) int N_k N_l dV (m^3) of the pressure shape functions."""
+    return jnp.einsum("eg,gk,gl->ekl", model.dV, _basis(model), _basis(model))
 
 
 def _nodal(model: Model, P):
@@ -264,17 +288,18 @@ def element_forces(model: Model, q, E, Cv_old, dt, p=None):
     Args:
       q: (n_dofs,) coordinates; E: (n_el, n_gp, 3) nominal field (V/m); Cv_old:
       (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s); p: (n_el,) element
-      pressures (Pa, mixed form; None = 0).
+      pressure unknowns (n_el, n_p) (Pa, mixed form; None = 0).
     Returns:
-      fe (n_el, 32, 3) in N (N m for gradient slots), g (n_el,) = int (J - 1 - p/K) dV in
-      m^3 (None in the displacement form), Cv_new like Cv_old.
+      fe (n_el, 32, 3) in N (N m for gradient slots), g (n_el, n_p) = int N_k (J - 1 - p/K)
+      dV in m^3 (None in the displacement form), Cv_new like Cv_old.
     """
     F = deformation_gradients(model, q)
     if not model.structure.mixed:
         P, Cv_new = _per_point(stress_and_update)(F, E, Cv_old, dt, model.material)
         return _nodal(model, P), None, Cv_new
-    P, r_p, Cv_new = _per_point_mixed(mixed_stress_and_update)(F, E, Cv_old, dt, _pressure(model, p), model.material)
-    return _nodal(model, P), jnp.sum(model.dV * r_p, axis=1), Cv_new
+    P, r_p, Cv_new = _per_point_mixed(mixed_stress_and_update)(F, E, Cv_old, dt, pressure_at_points(model, p),
+                                                                model.material)
+    return _nodal(model, P), jnp.einsum("eg,gk,eg->ek", model.dV, _basis(model), r_p), Cv_new
 
 
 def internal_force(model: Model, q, E, Cv_old, dt, p=None):
@@ -289,7 +314,7 @@ def internal_force_at(model: Model, q, E, Cv, p=None):
     F = deformation_gradients(model, q)
     if model.structure.mixed:
         grad = jax.grad(mixed_free_energy, argnums=0)
-        pg = jnp.broadcast_to(_pressure(model, p)[:, None], model.dV.shape)
+        pg = pressure_at_points(model, p)
         P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))(F, E, Cv, pg, model.material)
     else:
         grad = jax.grad(free_energy, argnums=0)
@@ -298,11 +323,11 @@ def internal_force_at(model: Model, q, E, Cv, p=None):
 
 
 class ElementSystem(eqx.Module):
-    """Element equations at one iterate (mixed form: u and the element pressure p).
+    """Element equations at one iterate (mixed form: u and the element pressure unknowns).
 
-    fe (n_el, 32, 3) forces; Ke (n_el, 96, 96) = d fe / d e; g (n_el,) pressure residuals
-    (m^3); kup (n_el, 96) = d fe / d p = d g / d e (m^2 per unit of coordinate); kpp
-    (n_el,) = d g / d p (m^3/Pa, -V/K; 0 for K = inf); g, kup, kpp are None in the
+    fe (n_el, 32, 3) forces; Ke (n_el, 96, 96) = d fe / d e; g (n_el, n_p) pressure
+    residuals (m^3); kup (n_el, n_p, 96) = d fe / d p = d g / d e; kpp (n_el, n_p, n_p) =
+    d g / d p (m^3/Pa: -int N N^T dV / K; 0 for K = inf); g, kup, kpp are None in the
     displacement form. Cv_new: the viscous state implied by this iterate.
     """
 
@@ -323,43 +348,44 @@ def element_system(model: Model, q, E, Cv_old, dt, p=None) -> ElementSystem:
         Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G)
         return ElementSystem(_nodal(model, P), Ke.reshape(n_el, 96, 96), None, None, None, Cv_new)
     P, r_p, D, P_p, r_pp, Cv_new = _per_point_mixed(mixed_tangent_and_update)(
-        F, E, Cv_old, dt, _pressure(model, p), model.material)
+        F, E, Cv_old, dt, pressure_at_points(model, p), model.material)
     Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G).reshape(n_el, 96, 96)
-    kup = _nodal(model, P_p).reshape(n_el, 96)
-    return ElementSystem(_nodal(model, P), Ke, jnp.sum(model.dV * r_p, axis=1), kup, jnp.sum(model.dV * r_pp, axis=1),
-                         Cv_new)
+    N = _basis(model)
+    kup = jnp.einsum("eg,gk,egaj,egij->ekai", model.dV, N, model.G, P_p).reshape(n_el, N.shape[1], 96)
+    g = jnp.einsum("eg,gk,eg->ek", model.dV, N, r_p)
+    kpp = jnp.einsum("eg,gk,gl,eg->ekl", model.dV, N, N, r_pp)
+    return ElementSystem(_nodal(model, P), Ke, g, kup, kpp, Cv_new)
 
 
 AUGMENTED_BULK = 1e4
 """K = inf: the condensed Newton matrix uses K = AUGMENTED_BULK x (mu_inf + sum mu_s) in
-place of the missing pressure stiffness (the residual keeps J = 1 exactly; the iterates
-then approach it at a rate of about 1 / AUGMENTED_BULK per iteration)."""
+place of the missing pressure stiffness (the residual keeps the volume constraints exact;
+the iterates then approach them at a rate of about 1 / AUGMENTED_BULK per iteration)."""
 
 
 def newton_kpp(model: Model, kpp):
-    """(n_el,) pressure stiffness used to condense the Newton matrix: kpp itself for a
-    finite bulk modulus, -V_e / K_aug for K = inf (see AUGMENTED_BULK)."""
+    """(n_el, n_p, n_p) pressure block used to condense the Newton matrix: kpp itself for
+    a finite bulk modulus, -int N N^T dV / K_aug for K = inf (see AUGMENTED_BULK)."""
     if not model.structure.incompressible:
         return kpp
     mat = model.material
-    K_aug = AUGMENTED_BULK * (mat.mu_inf + jnp.sum(mat.mu))
-    return -jnp.sum(model.dV, axis=1) / K_aug
+    return -pressure_mass(model) / (AUGMENTED_BULK * (mat.mu_inf + jnp.sum(mat.mu)))
 
 
 def condense(Ke, kup, kpp):
-    """Static condensation of the element pressures: Ke - kup kup^T / kpp (n_el, 96, 96)."""
-    return Ke - jnp.einsum("ea,eb->eab", kup, kup) / kpp[:, None, None]
+    """Static condensation of the element pressures: Ke - kup^T kpp^-1 kup (n_el, 96, 96)."""
+    return Ke - jnp.einsum("eka,ekb->eab", kup, jnp.linalg.solve(kpp, kup))
 
 
-def condensed_force(fe, g, kup, kpp):
-    """(n_el, 32, 3) condensed element right-hand side fe - kup g / kpp."""
-    return fe - (kup * (g / kpp)[:, None]).reshape(fe.shape)
+def pressure_force(kup, kpp, g):
+    """(n_el, 96) kup^T kpp^-1 g: what condensation subtracts from the element forces."""
+    return jnp.einsum("eka,ek->ea", kup, jnp.linalg.solve(kpp, g[..., None])[..., 0])
 
 
 def pressure_correction(model: Model, g, kup, kpp, dq):
-    """(n_el,) pressure correction dp = -(g + kup . dq_e) / kpp for a coordinate change dq (n_dofs,)."""
-    dqe = element_coordinates(model, dq).reshape(kup.shape)
-    return -(g + jnp.sum(kup * dqe, axis=1)) / kpp
+    """(n_el, n_p) pressure correction dp = -kpp^-1 (g + kup dq_e) for a coordinate change dq (n_dofs,)."""
+    dqe = element_coordinates(model, dq).reshape(kup.shape[0], 96)
+    return -jnp.linalg.solve(kpp, (g + jnp.einsum("eka,ea->ek", kup, dqe))[..., None])[..., 0]
 
 
 def element_tangents(model: Model, q, E, Cv_old, dt, p=None):
@@ -411,7 +437,7 @@ def free_energy_total(model: Model, q, E, Cv, p=None) -> jax.Array:
     perturbed-Lagrangian energy at the element pressures p, None = 0)."""
     F = deformation_gradients(model, q)
     if model.structure.mixed:
-        pg = jnp.broadcast_to(_pressure(model, p)[:, None], model.dV.shape)
+        pg = pressure_at_points(model, p)
         fn = jax.vmap(jax.vmap(mixed_free_energy, in_axes=(0, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))
         psi = fn(F, E, Cv, pg, model.material)
     else:

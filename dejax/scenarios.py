@@ -74,19 +74,21 @@ class Problem:
     params: dict
     extras: dict = dataclasses.field(default_factory=dict)
     rho_inf: float = 0.8
+    quasi_static: bool = False
 
-    def simulate(self, t_end, dt, rho_inf=None, newton=it.NewtonOptions(), solver=None) -> it.Solution:
+    def scheme(self, rho_inf=None, quasi_static=None):
+        """The time scheme: QuasiStatic if asked (default: the scenario's choice, True for
+        material tests), else generalized-alpha with rho_inf (default the scenario's)."""
+        qs = self.quasi_static if quasi_static is None else quasi_static
+        return it.QuasiStatic() if qs else it.GeneralizedAlpha(self.rho_inf if rho_inf is None else rho_inf)
+
+    def simulate(self, t_end, dt, rho_inf=None, newton=it.NewtonOptions(), solver=None, quasi_static=None,
+                 control=it.StepControl()) -> it.Solution:
         """Run from rest to t_end with step dt (s); returns the Solution (not checked).
-        rho_inf defaults to the scenario's (0.8, the paper's; 0 for quasi-static tests)."""
-        return it.simulate(
-            self.model,
-            self.loading,
-            it.time_grid(t_end, dt),
-            self.output_fn,
-            it.GeneralizedAlpha(self.rho_inf if rho_inf is None else rho_inf),
-            newton,
-            solver,
-        )
+        rho_inf defaults to the scenario's (0.8, the paper's); quasi_static to the scenario's
+        (True for ``uniaxial``); control: step cut-back (None = off)."""
+        return it.simulate(self.model, self.loading, it.time_grid(t_end, dt), self.output_fn,
+                           self.scheme(rho_inf, quasi_static), newton, solver, control=control)
 
 
 class _NodeMean:
@@ -123,6 +125,7 @@ def block(
     gauss_order: int = 3,
     damping: float = 0.0,
     voltage=None,
+    volumetric: str = "mixed",
 ) -> Problem:
     """DE block of paper Sec. 4: cube of side L (m) with u1 = 0 on x = 0, u2 = 0 on y = 0,
     u3 = 0 on z = 0, phi = 0 on z = 0 and the Eq. (41) ramp-and-hold to ``phi_max`` (V)
@@ -140,7 +143,7 @@ def block(
     for face, axis in (("x0", 0), ("y0", 1), ("z0", 2)):
         c = c.fix(cs.face_dofs(mesh.nodes(face), axis, [axis]))
     material = block_material() if material is None else material
-    model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping, volumetric=volumetric)
     history = loads.RampHold(phi_max, t_ramp) if voltage is None else voltage
     out = _NodeMean(
         {
@@ -156,6 +159,7 @@ def block(
         t_ramp=t_ramp,
         gauss_order=gauss_order,
         damping=damping,
+        volumetric=volumetric,
         mu_inf=material.mu_inf,
         K_inf=material.K_inf,
         Jm_inf=material.Jm_inf,
@@ -205,6 +209,7 @@ def rolled(
     damping: float = 0.0,
     point: str = "P",
     voltage=None,
+    volumetric: str = "mixed",
 ) -> Problem:
     """Rolled (tubular) DEA of paper Sec. 6.
 
@@ -222,7 +227,7 @@ def rolled(
     c = cs.Constraints(mesh.n_dofs)
     c = c.fix(cs.face_dofs(mesh.nodes("top"), 0, [1, 2]))
     c = c.fix(cs.face_dofs(mesh.nodes("bottom"), 0, [0, 1, 2]))
-    m = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    m = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping, volumetric=volumetric)
     nodes = mesh.nodes(point)
     if len(nodes) != 1:
         raise ValueError(f"output point set {point!r} must hold one node, it holds {len(nodes)}")
@@ -230,7 +235,7 @@ def rolled(
     hh = float(h) if isinstance(h, (int, float)) else 1.0
     params = dict(
         scenario="rolled", model=model if isinstance(model, str) else "custom", freq=freq, phi_max=phi_max,
-        h=h, r=r, L=L, mesh=list(shape), gauss_order=gauss_order, damping=damping, point=point,
+        h=h, r=r, L=L, mesh=list(shape), gauss_order=gauss_order, damping=damping, point=point, volumetric=volumetric,
         **_material_params(material),
     )
     return Problem("rolled", m, it.Loading(voltages=(history,)), _TubeOutputs(nodes[0], hh), params,
@@ -283,6 +288,7 @@ def torsional(
     shape=(48, 8, 2),
     gauss_order: int = 3,
     damping: float = 0.0,
+    volumetric: str = "mixed",
 ) -> Problem:
     """Torsional DEA of paper Sec. 5: pre-twisted strip (length 60 h, width 10 h, one turn).
 
@@ -310,12 +316,12 @@ def torsional(
     c = c.fix(cs.dof_index(centre, 0, 1))
     c = c.fix(np.concatenate([cs.dof_index(x1, 2, 0), cs.dof_index(x1, 3, 0)]))  # x = L face: no tilt
     c = c.tie(cs.dof_index(x1, 0, 0))  # x = L face: common axial position
-    m = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping)
+    m = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping, volumetric=volumetric)
     scale = thickness * jnp.sqrt(material.mu_inf / material.eps)
     history = loads.Scaled(loads.PiecewiseLinear([0.0, t_ramp], [0.0, phibar_max]), scale)
     params = dict(scenario="torsional", phibar_max=phibar_max, t_ramp=t_ramp, thickness=thickness,
                   length=length_ratio * thickness, width=width_ratio * thickness, turns=turns, mesh=list(n),
-                  gauss_order=gauss_order, damping=damping, **_material_params(material))
+                  gauss_order=gauss_order, damping=damping, volumetric=volumetric, **_material_params(material))
     return Problem("torsional", m, it.Loading(voltages=(history,)), _TwistOutputs(x1), params,
                    {"mesh": mesh, "phibar_scale": scale})
 
@@ -389,9 +395,9 @@ def uniaxial(
     model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping, volumetric=volumetric)
     loading = it.Loading(voltages=(voltage,) if voltage is not None else (), motions=(_MinusOne(stretch),))
     params = dict(scenario="uniaxial", lx=lx, ly=ly, lz=lz, mesh=list(shape), gauss_order=gauss_order,
-                  damping=damping, **_material_params(material))
+                  damping=damping, volumetric=volumetric, **_material_params(material))
     return Problem("uniaxial", model, loading, _UniaxialOutputs(x1, mesh.nodes("z1"), lx, ly * lz, lz), params,
-                   {"mesh": mesh}, rho_inf=0.0)
+                   {"mesh": mesh}, rho_inf=0.0, quasi_static=True)
 
 
 class _MinusOne(eqx.Module):

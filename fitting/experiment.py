@@ -72,9 +72,8 @@ class UniaxialForward(_Hashable):
 
     n_units: viscous units; lz: thickness (m) when a voltage acts across it;
     voltage: whether ``data`` carries a voltage history; output: "stress".
-    Newton: full Newton (reuse=False) with up to 40 iterations by default: the first
-    step of a slow test (large dt, stretch increment ~0.01) did not converge in 25
-    modified-Newton iterations.
+    Quasi-static (the scenario's default scheme); full Newton (reuse=False), relative
+    residual ``tol``, up to 40 iterations.
     """
 
     def __init__(self, n_units: int, voltage: bool = False, lz: float = 1e-3, output: str = "stress",
@@ -91,7 +90,7 @@ class UniaxialForward(_Hashable):
 
     def simulate(self, params, data):
         p = self.problem(params, data)
-        return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(0.0),
+        return it.simulate(p.model, p.loading, data["times"], p.output_fn, p.scheme(),
                            it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse))
 
     def __call__(self, params, data):

@@ -632,3 +632,43 @@ def test_vmap_free_energy_matches_loop():
     assert batched.shape == (n,)
     assert np.max(np.abs(batched - loop)) <= 1e-13 * np.max(np.abs(loop))
     assert np.ptp(loop) > 1e-3 * np.max(np.abs(loop))  # the points really differ
+
+
+# ----------------------------------------------------------------------------- mixed form
+
+
+def test_mixed_energy_eliminates_to_the_penalty_energy():
+    """The perturbed Lagrangian psi_iso + p (J - 1) - p^2/(2K) is stationary in p at
+    p = K (J - 1) (K = K_inf + sum K_s), where it equals the paper's penalty energy and
+    has the same stress; with p free its p-derivative is J - 1 - p/K. (Cv with det 1, as
+    the isochoric flow keeps it, so Je = J.)"""
+    rng = np.random.default_rng(3)
+    mat = m.Material(67e3, 6.7e9, 15.0, 4e-11, 1100.0, mu=[20e3, 40e3], K=[1e9, 2e9], Jm=[5.0, 8.0], eta=[1.0, 2.0])
+    F = jnp.asarray(np.eye(3) + 0.1 * rng.standard_normal((3, 3)))
+    A = 0.2 * rng.standard_normal((2, 3, 3))
+    A = A + A.transpose(0, 2, 1)
+    A = A - np.trace(A, axis1=1, axis2=2)[:, None, None] / 3 * np.eye(3)
+    Cv = jnp.asarray(np.stack([jax.scipy.linalg.expm(a) for a in A]))
+    E = jnp.array([1e6, -2e6, 4e6])
+    K = 6.7e9 + 1e9 + 2e9
+    J = float(np.linalg.det(np.asarray(F)))
+    p_star = K * (J - 1.0)
+    psi = float(m.free_energy(F, E, Cv, mat))
+    psi_mixed = float(m.mixed_free_energy(F, E, Cv, p_star, mat))
+    assert psi_mixed == pytest.approx(psi, rel=1e-12)
+    P = np.asarray(jax.grad(m.free_energy)(F, E, Cv, mat))
+    P_mixed = np.asarray(jax.grad(m.mixed_free_energy)(F, E, Cv, p_star, mat))
+    np.testing.assert_allclose(P_mixed, P, rtol=1e-10, atol=1e-10 * np.abs(P).max())
+    dp = float(jax.grad(m.mixed_free_energy, argnums=3)(F, E, Cv, 1e5, mat))
+    assert dp == pytest.approx(J - 1.0 - 1e5 / K, rel=1e-12)
+
+
+def test_mixed_energy_incompressible_limit():
+    """K = inf: the pressure is the Lagrange multiplier of J = 1 (d psi / d p = J - 1)."""
+    mat = m.Material(67e3, np.inf, 15.0, 0.0, 1100.0).validate()
+    F = jnp.diag(jnp.array([1.3, 0.9, 0.8]))
+    assert float(jax.grad(m.mixed_free_energy, argnums=3)(F, jnp.zeros(3), jnp.zeros((0, 3, 3)), 2e4, mat)) == \
+        pytest.approx(1.3 * 0.9 * 0.8 - 1.0, rel=1e-12)
+    with pytest.raises(ValueError, match="K = inf"):
+        from dejax import mesh, model
+        model.build_model(mesh.block_mesh(1e-3), mat, volumetric="displacement")
