@@ -374,21 +374,23 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             return zt, pt, ru, g, jnp.where(ok, res, jnp.inf), ok
 
         def line_search(z, p, dz, dp, res, fresh):
-            """Backtrack from a = 1: admissibility always; Armijo decrease for a fresh direction."""
+            """Backtrack from a = 1: admissibility always; Armijo decrease for a fresh direction.
+            (One traced trial: the loop starts at a = 2 with an unacceptable placeholder.)"""
             c1 = 1e-4
 
             def cond(c):
                 a, k, out = c
                 zt, pt, ru, g, rt, ok = out
                 bad = (~ok) | (opts.line_search & fresh & (rt > (1.0 - c1 * a) * res))
-                return bad & (k < opts.max_backtracks)
+                return bad & (k <= opts.max_backtracks)
 
             def body(c):
                 a, k, _ = c
                 a = 0.5 * a
                 return a, k + 1, trial(z, p, dz, dp, a)
 
-            a, _, out = jax.lax.while_loop(cond, body, (jnp.asarray(1.0), 0, trial(z, p, dz, dp, 1.0)))
+            placeholder = (z, p, jnp.zeros_like(z), jnp.zeros_like(p), jnp.asarray(jnp.inf), jnp.asarray(False))
+            a, _, out = jax.lax.while_loop(cond, body, (jnp.asarray(2.0), 0, placeholder))
             return a, out
 
         def body(c):
