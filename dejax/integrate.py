@@ -362,8 +362,6 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
     def _solve(model, ctx, z0, p0, fac, valid):
         scale = jnp.asarray(model.structure.dof_scale)
         floor = _residual_floor(model)
-        ru0, g0, _ = _residual(model, scheme, ctx, z0, p0)
-        res0 = _residual_norm(model, ru0, g0)
 
         def trial(z, p, dz, dp, a):
             zt, pt = z + a * dz, p + a * dp
@@ -394,35 +392,42 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             return a, out
 
         def body(c):
-            z, p, ru, g, res, res_prev, it, nfac, fac, valid, conv, alive = c
+            z, p, ru, g, res, res_prev, res0, it, nfac, fac, valid, conv, alive = c
+            # the first pass (it = -1) only evaluates the residual at the starting iterate,
+            # through the same traced trial as the line search (one residual in the program)
+            start = it < 0
             slow = (it >= 1) & (res > opts.refactor_rate * res_prev)
-            need = ((~valid) | slow) if opts.reuse else jnp.asarray(True)
+            need = (((~valid) | slow) if opts.reuse else jnp.asarray(True)) & ~start
             fac = jax.lax.cond(need, lambda: factor(model, ctx, z, p), lambda: fac)
-            dz, dp = direction(model, fac, ru, g)
+            dz, dp = jax.lax.cond(start, lambda: (jnp.zeros_like(z), jnp.zeros_like(p)),
+                                  lambda: direction(model, fac, ru, g))
             a, (zt, pt, rut, gt, rest, ok) = line_search(z, p, dz, dp, res, need)
             # a stale factorization whose step does not reduce the residual is not applied:
             # the iterate is kept and the next iteration refactors
-            accept = ok & (need | (rest < res))
+            accept = ok & (need | start | (rest < res))
             z, p = jnp.where(accept, zt, z), jnp.where(accept, pt, p)
             ru, g = jnp.where(accept, rut, ru), jnp.where(accept, gt, g)
             res_new = jnp.where(accept, rest, res)
+            res0 = jnp.where(start, rest, res0)
             if opts.criterion == "residual":
-                conv = accept & ((res_new <= opts.tol * res0) | (res_new <= floor))
+                conv = accept & (((res_new <= opts.tol * res0) & ~start) | (res_new <= floor))
             else:
-                conv = accept & (jnp.max(jnp.abs(a * dz) / scale) <= opts.tol)
-            # a fresh direction that cannot be applied ends the iteration (failed step)
-            alive = accept | ~need
-            return (z, p, ru, g, res_new, jnp.where(accept, res, res_prev), it + 1, nfac + need.astype(int),
-                    fac, accept, conv, alive)
+                conv = accept & ~start & (jnp.max(jnp.abs(a * dz) / scale) <= opts.tol)
+            # a fresh direction that cannot be applied ends the iteration (failed step), and
+            # so does a starting iterate that is inadmissible or non-finite
+            alive = jnp.where(start, accept, accept | ~need)
+            return (z, p, ru, g, res_new, jnp.where(accept & ~start, res, res_prev), res0, it + 1,
+                    nfac + need.astype(int), fac, jnp.where(start, valid, accept), conv, alive)
 
         def cond(c):
             *_, it, _, _, _, conv, alive = c
             return (~conv) & (it < opts.max_iter) & alive
 
-        conv0 = jnp.isfinite(res0) & (res0 <= floor)
-        c0 = (z0, p0, ru0, g0, res0, jnp.asarray(jnp.inf), jnp.asarray(0), jnp.asarray(0), fac, jnp.asarray(valid),
-              conv0, jnp.isfinite(res0))
-        z, p, _, _, _, _, it, nfac, fac, _, conv, _ = jax.lax.while_loop(cond, body, c0)
+        inf = jnp.asarray(jnp.inf)
+        c0 = (z0, p0, jnp.zeros_like(z0), jnp.zeros_like(p0), inf, inf, inf, jnp.asarray(-1), jnp.asarray(0), fac,
+              jnp.asarray(valid), jnp.asarray(False), jnp.asarray(True))
+        z, p, _, _, _, _, _, it, nfac, fac, _, conv, _ = jax.lax.while_loop(cond, body, c0)
+        it = jnp.maximum(it, 0)
         return z, p, it, nfac, conv, fac
 
     @jax.custom_jvp

@@ -125,7 +125,8 @@ class Forward:
         loading = eqx.tree_at(lambda l: l.voltages[0].base, p.loading, trace.base)
         n = len(trace.t) - 1
         pad = max(self.pad_to or n, n)
-        sol = it.simulate(p.model, loading, trace.t, self.problem.output_fn, self.scheme, self.newton, pad_to=pad)
+        sol = it.simulate(p.model, loading, trace.t, self.problem.output_fn, self.scheme, self.newton, pad_to=pad,
+                          control=None)  # fixed steps, as the fits (experiment.FIT_STEP_CONTROL)
         self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)
         if not sol.ok:  # failed run: report a huge residual rather than crash the ranking

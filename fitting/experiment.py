@@ -67,6 +67,12 @@ class _Hashable:
         return type(other) is type(self) and other._key() == self._key()
 
 
+FIT_STEP_CONTROL = None
+"""Forward models of fits take the user's steps without cut-back: a differentiated run
+with cut-back replays its sub-steps (a second forward pass and a second compiled
+program), which fits, with hundreds of gradient evaluations, cannot afford yet."""
+
+
 class UniaxialForward(_Hashable):
     """Stress (Pa) of a stretch-controlled uniaxial test at the observation times.
 
@@ -91,7 +97,8 @@ class UniaxialForward(_Hashable):
     def simulate(self, params, data):
         p = self.problem(params, data)
         return it.simulate(p.model, p.loading, data["times"], p.output_fn, p.scheme(),
-                           it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse))
+                           it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse),
+                           control=FIT_STEP_CONTROL)
 
     def __call__(self, params, data):
         sol = self.simulate(params, data)
@@ -108,7 +115,8 @@ class BlockForward(_Hashable):
         mat = material_from(params, self.n_units)
         p = scenarios.block(L=self.L, material=mat, voltage=Interp(data["volt_t"], data["volt_v"]),
                             damping=params.get("c_d", 0.0))
-        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf))
+        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
+                          control=FIT_STEP_CONTROL)
         return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
@@ -124,7 +132,8 @@ class RolledForward(_Hashable):
         mat = material_from(params, self.n_units)
         p = scenarios.rolled(mat, h=self.h, r=self.r, L=self.L, shape=self.shape,
                              voltage=Interp(data["volt_t"], data["volt_v"]), damping=params.get("c_d", 0.0))
-        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf))
+        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
+                          control=FIT_STEP_CONTROL)
         return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
