@@ -16,9 +16,18 @@ solves for the free coordinates of q_{n+1}; the iteration matrix is
 beta' M + gamma' c_d M + K with beta' = (1 - alpha_m)/((1 - alpha_f) beta h^2),
 gamma' = gamma/(beta h) (Eq. 35).
 
+In the mixed form (``model.build_model(volumetric="mixed")``, the default) the element
+pressure unknowns p are solved with q and condensed element by element. ``QuasiStatic``
+drops the inertia terms. Newton is globalized by a line search on the scaled residual
+norm beside the admissibility safeguard, converges on the relative residual (1e-6, the
+paper's tolerance), and a step that fails is cut back (``StepControl``: dt/2 down to
+dt_min = 1e-6 s, growing back after easy sub-steps; outputs stay on the user's grid).
+
 Derivatives: the converged step solution is differentiated implicitly
 (``jax.custom_jvp``: K dz = -dR), never through the Newton iterations; the rule
-is linear in the tangents, so reverse mode (``jax.grad``) works by transposition.
+is linear in the tangents, so reverse mode (``jax.grad``) works by transposition. A
+differentiated run replays its accepted sub-steps as a fixed grid (``_run``'s jvp), so
+derivatives hold through cut-backs.
 """
 from __future__ import annotations
 

@@ -26,8 +26,10 @@ from . import model as mdl
 @dataclasses.dataclass(frozen=True)
 class DenseSolver:
     """Dense LU of the assembled matrix: for small and fit-scale meshes (up to a few
-    thousand unknowns). The consistent viscous tangent need not be exactly symmetric,
-    so LU rather than Cholesky."""
+    thousand unknowns). The iteration matrix is symmetric for every material option
+    (viscous dCv/dF and condensed pressures included; tests/test_model.py asserts it),
+    which ``SparseSolver.solve`` relies on; LU rather than Cholesky because it need not
+    be positive definite (past an instability, or with K = inf condensed)."""
 
     def factor(self, model, Ke):
         return jax.scipy.linalg.lu_factor(mdl.assemble_dense(model, Ke))

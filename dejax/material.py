@@ -208,7 +208,7 @@ def bulk_modulus(mat: Material):
 def mixed_free_energy(F, E, Cv, p, mat: Material):
     """Perturbed-Lagrangian free energy psi_iso + p (J - 1) - p^2 / (2 K) (J/m^3).
 
-    p (Pa) is the pressure unknown (kept constant per element by the model); eliminating
+    p (Pa) is the pressure at the point (the model interpolates it per element); eliminating
     it pointwise (p = K (J - 1)) gives back ``free_energy``. K = ``bulk_modulus(mat)``
     may be ``inf``: then p is the Lagrange multiplier of J = 1."""
     K = bulk_modulus(mat)

@@ -118,8 +118,8 @@ def build_model(
         incompressible = bool(np.isinf(np.asarray(bulk_modulus(material))))
     except jax.errors.TracerArrayConversionError:
         pass
-    if incompressible and volumetric != "mixed":
-        raise ValueError("K = inf (exact incompressibility) needs volumetric='mixed'")
+    if incompressible and volumetric == "displacement":
+        raise ValueError("K = inf (exact incompressibility) needs a mixed volumetric form, not 'displacement'")
     if constraints is None:
         constraints = Constraints(mesh.n_dofs)
     if constraints.n_dofs != mesh.n_dofs:
@@ -287,8 +287,8 @@ def element_forces(model: Model, q, E, Cv_old, dt, p=None):
 
     Args:
       q: (n_dofs,) coordinates; E: (n_el, n_gp, 3) nominal field (V/m); Cv_old:
-      (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s); p: (n_el,) element
-      pressure unknowns (n_el, n_p) (Pa, mixed form; None = 0).
+      (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s); p: (n_el, n_p)
+      element pressure unknowns (Pa, mixed form; None = 0).
     Returns:
       fe (n_el, 32, 3) in N (N m for gradient slots), g (n_el, n_p) = int N_k (J - 1 - p/K)
       dV in m^3 (None in the displacement form), Cv_new like Cv_old.

@@ -135,10 +135,11 @@ def _cantilever_reference(length=20e-3, t=1e-3, g=0.025, mu=1e5, K=1e9, rho=1000
     return None, q * length**4 / (8 * E * t**4 / 12) + q * length**2 / (2 * (5 / 6) * mu * t * t)
 
 
-@pytest.mark.parametrize("n_thick", [1, 2, 4])
+@pytest.mark.parametrize("n_thick", [1, pytest.param(2, marks=pytest.mark.slow), pytest.param(4, marks=pytest.mark.slow)])
 def test_cantilever_does_not_lock(n_thick):
     """Mixed form: the tip deflection of the nearly incompressible cantilever matches the
-    beam closed form at 1, 2 and 4 elements through the thickness."""
+    beam closed form at 1, 2 and 4 elements through the thickness (2 and 4: slow tier,
+    measured 0.972 and 0.976 of the beam value)."""
     tip, ref = _cantilever(n_thick, "mixed")
     print(f"\nmixed, {n_thick} through the thickness: tip {tip:.4e} m, beam theory {ref:.4e} m, ratio {tip / ref:.4f}")
     assert tip == pytest.approx(ref, rel=0.03)
