@@ -332,12 +332,14 @@ def _residual_norm(model: Model, ru, g):
     return jnp.sqrt(r2)
 
 
-def _residual_floor(model: Model):
+def _residual_floor(model: Model, mass_coefficient=0.0):
     """Round-off floor of the scaled residual norm (J): 64 eps x stress scale x element volume
     x sqrt(unknowns); the stress scale is the shear modulus, plus the bulk modulus in the
-    penalty (displacement) form, where K (J - 1) is formed in floating point."""
-    stiff = _shear_scale(model) + (0.0 if model.structure.mixed else bulk_modulus(model.material))
+    penalty (displacement) form, where K (J - 1) is formed in floating point, plus the
+    inertia term beta' rho ell^2 of the step (small steps make it dominate)."""
     v_el = jnp.sum(model.dV) / model.dV.shape[0]
+    inertia = mass_coefficient * model.material.rho * v_el ** (2.0 / 3.0)
+    stiff = _shear_scale(model) + (0.0 if model.structure.mixed else bulk_modulus(model.material)) + inertia
     return 64 * np.finfo(float).eps * stiff * v_el * np.sqrt(model.structure.n_free + model.dV.shape[0])
 
 
@@ -370,7 +372,7 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
 
     def _solve(model, ctx, z0, p0, fac, valid):
         scale = jnp.asarray(model.structure.dof_scale)
-        floor = _residual_floor(model)
+        floor = _residual_floor(model, scheme.matrix_coefficients(ctx.t1 - ctx.state.t)[0])
 
         def trial(z, p, dz, dp, a):
             zt, pt = z + a * dz, p + a * dp

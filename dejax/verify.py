@@ -110,7 +110,7 @@ class _Energy:
     def __call__(self, model, loading, state):
         E = jnp.zeros(model.dV.shape + (3,))
         return {
-            "energy": mdl.kinetic_energy(model, state.v) + mdl.free_energy_total(model, state.q, E, state.Cv),
+            "energy": mdl.kinetic_energy(model, state.v) + mdl.free_energy_total(model, state.q, E, state.Cv, state.p),
             "q": state.q,
         }
 
@@ -118,7 +118,7 @@ class _Energy:
 def _free_vibration(model, v0, t_end, dt, rho_inf, pad_to=None):
     s0 = it.initial_state(model, v=v0)
     return it.simulate(model, it.Loading(), it.time_grid(t_end, dt), _Energy(), it.GeneralizedAlpha(rho_inf),
-                       it.NewtonOptions(tol=1e-12), state0=s0, pad_to=pad_to).check()
+                       it.NewtonOptions(tol=1e-12, criterion="correction"), state0=s0, pad_to=pad_to).check()
 
 
 def _lowest_mode_velocity(model, amplitude):
