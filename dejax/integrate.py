@@ -798,17 +798,12 @@ def _simulate_jit(model, loading, t0, times, active, state0, *, output_fn, schem
                     res["final"], res["cutbacks"], res["dt_smallest"])
 
 
-def _solver(solver):
-    return DenseSolver() if solver is None else solver
-
-
 @eqx.filter_custom_jvp
 def _run(model, loading, s0, times, active, *, output_fn, scheme, newton, solver, control):
     """Primal run over the grid ``times`` (m,), with cut-back where ``control`` allows."""
-    solver = _solver(solver)
     step = make_step(scheme, newton, solver)
     budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0]))
-    carry = initial_carry(model, s0, solver, budget)
+    carry = initial_carry(model, s0, step.solver, budget)
     carry, (outs, its, nfac, ncut, last) = make_scan(step, output_fn, control)(model, loading, carry, times, active)
     return dict(outputs=outs, iterations=its, factorizations=nfac, cutbacks=ncut, status=carry.status,
                 fail_step=carry.fail_step, final=carry.state, dt_smallest=carry.h_smallest, schedule=carry.schedule,
@@ -830,7 +825,7 @@ def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
         on = jnp.arange(budget) < res["n_sub"]
         grid = jnp.where(on, sched, sched[jnp.maximum(res["n_sub"] - 1, 0)])
         rows = jnp.clip(res["last"], 0, budget - 1)
-    step = make_step(scheme, newton, _solver(solver))
+    step = make_step(scheme, newton, solver)
     run = make_scan(step, output_fn)
 
     def replay(model, loading, s0):
