@@ -170,7 +170,7 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     import numpy as np
 
     from . import integrate as it
-    from . import linsolve
+    from . import linsolve, stability
     from .results import write_h5
 
     times = it.time_grid(t_end, dt)
@@ -188,9 +188,11 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         control=it.StepControl(dt_min=args.dt_min),
     )
     iters = np.asarray(sol.iterations)
+    sol = stability.classify_failure(problem.model, problem.loading, sol, args.dt_min)
     if not sol.ok:
         detail = (f"the failing step was cut back {int(np.asarray(sol.cutbacks)[int(sol.fail_step)])} times, down to "
                   f"dt = {args.dt_min:g} s" if sol.n_cutbacks and int(sol.fail_step) >= 0 else "")
+        detail = "; ".join(d for d in (detail, sol.detail) if d)
         err = it.SimulationError(it.Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1, detail)
         print(f"dejax: error: {err} (no results file written)", file=sys.stderr)
         return 1

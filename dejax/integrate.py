@@ -62,6 +62,7 @@ class Status(enum.IntEnum):
     GENT_LIMIT = 2
     NONFINITE = 3
     INVERTED = 4
+    INSTABILITY = 5
 
     def describe(self) -> str:
         return {
@@ -71,6 +72,8 @@ class Status(enum.IntEnum):
             Status.GENT_LIMIT: f"the Gent limiting stretch was reached (1 - (I1bar - 3)/Jm <= {GENT_LOCK_MARGIN:g})",
             Status.NONFINITE: "the state became non-finite (NaN or inf)",
             Status.INVERTED: "an element inverted (det F <= 0)",
+            Status.INSTABILITY: "an equilibrium instability (electromechanical pull-in or snap-through): the "
+            "static tangent lost positive definiteness, so Newton failed at the smallest step",
         }[self]
 
 
@@ -578,6 +581,7 @@ class Carry(eqx.Module):
     h_smallest: jax.Array
     schedule: jax.Array
     n_sub: jax.Array
+    last_good: State
 
 
 def _empty_fac(model: Model, solver):
@@ -590,7 +594,7 @@ def _empty_fac(model: Model, solver):
 def initial_carry(model: Model, state: State, solver, max_substeps: int = 0) -> Carry:
     inf = jnp.asarray(jnp.inf)
     return Carry(state, jnp.asarray(0), jnp.asarray(-1), jnp.asarray(0), _empty_fac(model, solver), jnp.asarray(False),
-                 inf, inf, inf, jnp.zeros(max_substeps), jnp.asarray(0))
+                 inf, inf, inf, jnp.zeros(max_substeps), jnp.asarray(0), state)
 
 
 def _same_step(h, h_fac):
@@ -629,7 +633,7 @@ def make_user_step(step, control: StepControl):
             schedule = jnp.where(ok, c.schedule.at[k].set(t_new), c.schedule)
             c = Carry(state, jnp.where(ok | retry, 0, st), c.fail_step, c.step_offset, fac, ok, h,
                       jnp.minimum(h_next, dt), jnp.where(ok, jnp.minimum(c.h_smallest, h), c.h_smallest), schedule,
-                      c.n_sub + ok.astype(int))
+                      c.n_sub + ok.astype(int), state)
             return c, its + it, nfac + nf, ncut + (~ok).astype(int)
 
         zero = jnp.asarray(0)
@@ -657,6 +661,7 @@ def make_scan(step, output_fn: Callable, control: StepControl | None = None):
                     failed = c1.status != 0
                     # after a failure the state stays at the last user-grid time
                     state = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), c.state, c1.state)
+                    # (last_good keeps the last converged sub-step: the state nearest a failure)
                     c1 = eqx.tree_at(lambda x: (x.state, x.fail_step), c1, (state, jnp.where(failed, k, c.fail_step)))
                     return c1, (it, nfac, ncut)
                 h = t1 - c.state.t
@@ -665,7 +670,7 @@ def make_scan(step, output_fn: Callable, control: StepControl | None = None):
                 state = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), c.state, new)
                 c1 = Carry(state, st, jnp.where(failed, k, c.fail_step), c.step_offset, fac, ~failed, h, c.h_next,
                            jnp.where(failed, c.h_smallest, jnp.minimum(c.h_smallest, h)), c.schedule,
-                           c.n_sub + (~failed).astype(int))
+                           c.n_sub + (~failed).astype(int), state)
                 return c1, (it, nfac, jnp.asarray(0))
 
             def skip(c):
@@ -689,8 +694,10 @@ class Solution:
     iterations: (n,) Newton iterations per step (all sub-steps); factorizations: (n,)
     iteration-matrix factorizations per step; cutbacks: (n,) failed sub-steps retried with
     half the step; dt_smallest: the smallest step used (s); status: Status; fail_time (s)
-    and fail_step (-1 if none); final: the last State (the last converged one after a
-    failure).
+    and fail_step (-1 if none); final: the last State on the time grid (the last converged
+    one after a failure); last_converged: the last converged sub-step (after a failure the
+    state nearest it, at last_converged.t); detail: what a failure analysis found (see
+    ``dejax.stability.classify_failure``).
     """
 
     time: jax.Array
@@ -702,6 +709,8 @@ class Solution:
     final: State
     cutbacks: jax.Array | None = None
     dt_smallest: jax.Array | None = None
+    last_converged: State | None = None
+    detail: str = ""
 
     @property
     def ok(self) -> bool:
@@ -719,15 +728,15 @@ class Solution:
     def check(self) -> "Solution":
         """Raise SimulationError naming what failed and when; return self otherwise."""
         if not self.ok:
-            raise SimulationError(Status(int(self.status)), self.fail_time, int(self.fail_step) + 1)
+            raise SimulationError(Status(int(self.status)), self.fail_time, int(self.fail_step) + 1, self.detail)
         return self
 
 
 jax.tree_util.register_pytree_node(
     Solution,
     lambda s: ((s.time, s.outputs, s.iterations, s.factorizations, s.status, s.fail_step, s.final, s.cutbacks,
-                s.dt_smallest), None),
-    lambda _, c: Solution(*c),
+                s.dt_smallest, s.last_converged), s.detail),
+    lambda detail, c: Solution(*c, detail=detail),
 )
 
 
@@ -784,7 +793,7 @@ def simulate(
                         scheme=scheme, newton=newton, solver=solver, control=control)
     outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)
     return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.factorizations[:n], sol.status, sol.fail_step,
-                    sol.final, sol.cutbacks[:n], sol.dt_smallest)
+                    sol.final, sol.cutbacks[:n], sol.dt_smallest, sol.last_converged)
 
 
 @eqx.filter_jit
@@ -795,7 +804,7 @@ def _simulate_jit(model, loading, t0, times, active, state0, *, output_fn, schem
     out0 = output_fn(model, loading, s0)
     outputs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, res["outputs"])
     return Solution(times, outputs, res["iterations"], res["factorizations"], res["status"], res["fail_step"],
-                    res["final"], res["cutbacks"], res["dt_smallest"])
+                    res["final"], res["cutbacks"], res["dt_smallest"], res["last_good"])
 
 
 @eqx.filter_custom_jvp
@@ -807,7 +816,7 @@ def _run(model, loading, s0, times, active, *, output_fn, scheme, newton, solver
     carry, (outs, its, nfac, ncut, last) = make_scan(step, output_fn, control)(model, loading, carry, times, active)
     return dict(outputs=outs, iterations=its, factorizations=nfac, cutbacks=ncut, status=carry.status,
                 fail_step=carry.fail_step, final=carry.state, dt_smallest=carry.h_smallest, schedule=carry.schedule,
-                n_sub=carry.n_sub, last=last)
+                n_sub=carry.n_sub, last=last, last_good=carry.last_good)
 
 
 @_run.def_jvp
@@ -838,6 +847,7 @@ def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
     t_res = _zero_tangent(res)
     t_res["outputs"] = nan_if(d_outs)
     t_res["final"] = nan_if(d_final)
+    t_res["last_good"] = t_res["final"]  # the same state unless the run failed
     return res, t_res
 
 
@@ -912,5 +922,5 @@ def run_chunked(
     outputs = jax.tree_util.tree_map(lambda a, *b: jnp.concatenate([a[None], *b]), out0, *outs)
     iterations = jnp.concatenate(its)
     sol = Solution(jnp.asarray(times[: iterations.shape[0] + 1]), outputs, iterations, jnp.concatenate(facs),
-                   carry.status, carry.fail_step, carry.state, jnp.concatenate(cuts), carry.h_smallest)
+                   carry.status, carry.fail_step, carry.state, jnp.concatenate(cuts), carry.h_smallest, carry.last_good)
     return sol, snapshots, compile_s, run_s

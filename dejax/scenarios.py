@@ -17,6 +17,7 @@ from . import constraints as cs
 from . import integrate as it
 from . import loads
 from . import model as mdl
+from . import stability
 from .material import Material
 from .mesh import block_mesh
 
@@ -86,9 +87,12 @@ class Problem:
                  control=it.StepControl()) -> it.Solution:
         """Run from rest to t_end with step dt (s); returns the Solution (not checked).
         rho_inf defaults to the scenario's (0.8, the paper's); quasi_static to the scenario's
-        (True for ``uniaxial``); control: step cut-back (None = off)."""
-        return it.simulate(self.model, self.loading, it.time_grid(t_end, dt), self.output_fn,
-                           self.scheme(rho_inf, quasi_static), newton, solver, control=control)
+        (True for ``uniaxial``); control: step cut-back (None = off). A Newton failure at the
+        smallest step is classified (``stability.classify_failure``): an instability is
+        reported as Status.INSTABILITY."""
+        sol = it.simulate(self.model, self.loading, it.time_grid(t_end, dt), self.output_fn,
+                          self.scheme(rho_inf, quasi_static), newton, solver, control=control)
+        return stability.classify_failure(self.model, self.loading, sol, control.dt_min if control else dt)
 
 
 class _NodeMean:

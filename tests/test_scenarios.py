@@ -6,10 +6,13 @@ closed-form equal-biaxial Gent membrane (a thin free tube under a radial field),
 mesh convergence, and the physics of viscous stiffening.
 
 Cost: every distinct mesh compiles its time stepper once (~15-40 s on 2 CPU cores),
-so the default set compiles once (test b); the thin-tube membrane check, the convergence
-study and the torsional comparison (6 more compilations) are marked ``slow``
-(``pytest --runslow``).
+so the default set compiles twice (test b and the torsional strip against FElupe on a
+24 x 4 x 2 mesh); the thin-tube membrane check, the convergence study and the torsional
+strip on the paper's mesh are marked ``slow`` (``pytest --runslow``).
 """
+import json
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,7 +20,7 @@ import pytest
 
 from dejax import constraints as cs
 from dejax import integrate as it
-from dejax import loads
+from dejax import linsolve, loads
 from dejax import model as mdl
 from dejax import reference as ref
 from dejax import scenarios
@@ -191,34 +194,51 @@ def test_mesh_refinement_of_x_P_converges():
 # ----------------------------------------------------------------------------- (e) torsional
 
 
-def _twist(phibar, viscous, t_ramp, n_steps=20, shape=(12, 4, 2)):
-    # density 1000x lower than the paper's: inertia negligible even for a 2.5 ms ramp, so
-    # only the material's rate dependence (relaxation time eta/(2 mu) = 2.5 ms) shows
-    mat = scenarios.torsional_material(viscous, rho=1.5)
-    p = scenarios.torsional(phibar_max=phibar, t_ramp=t_ramp, material=mat, shape=shape)
-    sol = it.simulate(p.model, p.loading, np.linspace(0.0, t_ramp, n_steps + 1), p.output_fn,
-                      it.GeneralizedAlpha(0.0)).check()
-    return p, sol
+REFERENCE = Path(__file__).resolve().parent.parent / "data" / "reference"
+
+
+def _felupe(shape):
+    """FElupe 11.3 twist angles of the same strip (27-node hexahedra, (u, p, J) form),
+    recorded by bench/felupe_torsional.py (phibar 0 -> 0.5 in 10 increments)."""
+    path = REFERENCE / f"torsional_felupe_{'x'.join(map(str, shape))}.json"
+    with open(path) as f:
+        return json.load(f)
+
+
+def _twist(shape, viscous=False, t_ramp=1.0, n_inc=10, phibar=0.5):
+    p = scenarios.torsional(phibar, t_ramp, viscous=viscous, shape=shape)
+    sol = p.simulate(t_ramp, t_ramp / n_inc, quasi_static=True, solver=linsolve.choose_solver(p.model.structure))
+    sol.check()
+    return np.asarray(sol.outputs["twist_angle"]), sol
+
+
+def test_torsional_twist_matches_an_independent_fe_code():
+    """Paper Sec. 5 strip, hyperelastic, quasi-static, phibar 0 -> 0.5 in 10 increments, on
+    24 x 4 x 2 ANCF elements, against FElupe on 48 x 8 x 2 tri-quadratic hexahedra (36,836
+    unknowns, its own mixed form, supports and Newton loop). FElupe's own mesh error is
+    about 1e-3 (its 24 x 4 x 2 mesh differs from its 48 x 8 x 2 one by at most 1.0e-3
+    relative); the ANCF 24 x 4 x 2 and 48 x 8 x 2 meshes both measured within 1.2e-3 of
+    FElupe's finest (12 x 2 x 2: 3.1e-2, too coarse). 5e-3 bounds both errors."""
+    ang, sol = _twist((24, 4, 2))
+    ref = _felupe((48, 8, 2))
+    np.testing.assert_allclose(ref["phibar"], np.linspace(0.0, 0.5, 11), atol=1e-12)
+    print("\ntwist (rad) dejax / FElupe:", [f"{a:.5f}/{r:.5f}" for a, r in zip(ang, ref["twist_angle"])])
+    np.testing.assert_allclose(ang[1:], ref["twist_angle"][1:], rtol=5e-3)
+    assert ang[-1] > 0.6  # a large twist: the strip untwists by 37 degrees at phibar 0.5
+    assert np.max(np.asarray(sol.iterations)) <= 12 and sol.n_cutbacks == 0
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="torsional scenario: Newton fails at step 1 for dt >= ~5e-3 s (even full Newton, "
-                          "tol 1e-7, 40 iterations) although the reference state is stress-free; see report",
-                   strict=False)
-def test_torsional_twist_grows_with_phibar_and_viscous_is_stiffer():
-    t_fast = 2.5e-3
-    p, sol = _twist(0.3, viscous=False, t_ramp=t_fast)
-    ang = np.asarray(sol.outputs["twist_angle"])
-    assert abs(ang[-1]) > 1e-3  # nonzero twist (rad)
-    assert np.all(np.diff(np.abs(ang[1:])) > 0)  # grows with phibar along the ramp
-    pv, solv = _twist(0.3, viscous=True, t_ramp=t_fast)
-    angv = np.asarray(solv.outputs["twist_angle"])
-    # same model, slow ramp (100 relaxation times): same compiled code, new time grid
-    slow = it.simulate(pv.model, pv.loading.__class__(voltages=(scenarios.loads.Scaled(
-        scenarios.loads.PiecewiseLinear([0.0, 0.25], [0.0, 0.3]), pv.extras["phibar_scale"]),)),
-        np.linspace(0.0, 0.25, 21), pv.output_fn, it.GeneralizedAlpha(0.0)).check()
-    angs = np.asarray(slow.outputs["twist_angle"])
-    print("twist at phibar 0.3: hyperelastic", ang[-1], "viscous fast", angv[-1], "viscous slow", angs[-1])
-    assert np.sign(angv[-1]) == np.sign(ang[-1])
-    assert abs(angv[-1]) < 0.9 * abs(ang[-1])  # viscous units stiffen a fast ramp
-    assert abs(angv[-1]) < abs(angs[-1])  # and relax at a slow one
+def test_torsional_paper_mesh_matches_felupe_and_viscous_unit_stiffens_a_fast_ramp():
+    """The paper's 48 x 8 x 2 = 768 elements against FElupe's 48 x 8 x 2 hex27 (measured
+    1.1e-3, asserted 2e-3);
+    with the viscous unit (relaxation time eta_1/(2 mu_1) = 2.5 ms): at the paper's 1 s ramp
+    the unit has relaxed (twist within 1 % of the hyperelastic one), at a 2.5 ms ramp it
+    stiffens the strip (quasi-static: material rate dependence only)."""
+    ang, _ = _twist((48, 8, 2))
+    np.testing.assert_allclose(ang[1:], _felupe((48, 8, 2))["twist_angle"][1:], rtol=2e-3)
+    slow, _ = _twist((48, 8, 2), viscous=True)
+    fast, _ = _twist((48, 8, 2), viscous=True, t_ramp=2.5e-3, n_inc=40)
+    print(f"\ntwist at 0.5: hyperelastic {ang[-1]:.5f}, viscous 1 s ramp {slow[-1]:.5f}, 2.5 ms ramp {fast[-1]:.5f}")
+    assert slow[-1] == pytest.approx(ang[-1], rel=1e-2)
+    assert 0 < fast[-1] < 0.8 * ang[-1]
