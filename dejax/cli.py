@@ -10,6 +10,8 @@ import importlib
 import sys
 import time
 
+from . import compile_cache
+
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # exit code 2 with a clear message (argparse default is also 2)
@@ -83,6 +85,9 @@ def _common_solver_args(p):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="dejax", description="Differentiable hyper-viscoelastic DEA simulator")
+    parser.add_argument("--no-compile-cache", action="store_true",
+                        help="do not use JAX's persistent compilation cache (default: on, in ~/.cache/dejax/jax "
+                             "or $DEJAX_CACHE_DIR; also off with DEJAX_COMPILE_CACHE=0)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     run = sub.add_parser("run", help="run a scenario and write an HDF5 results file")
@@ -294,6 +299,8 @@ def _cmd_verify(args):
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if not (args.no_compile_cache or compile_cache.disabled_by_env()):
+        compile_cache.enable()
     try:
         if args.command == "run":
             return _cmd_run(args)

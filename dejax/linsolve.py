@@ -105,7 +105,8 @@ class _FactorCache:
         self.factorizations += 1
         self.entries.append((key, f))
         if len(self.entries) > self.size:
-            self.entries.pop(0)
+            _, old = self.entries.pop(0)
+            getattr(old, "free", lambda: None)()  # MKL keeps a factorization until told to free it
         return f
 
 
@@ -123,15 +124,27 @@ def assemble_scipy(model, Ke):
     return _csc(_pattern(model.structure), np.asarray(SparseSolver()._values(model, Ke)))
 
 
+class _PardisoFactor:
+    """An MKL Pardiso factorization: call to solve; ``free()`` releases MKL's memory (the
+    Python object's garbage collection does not)."""
+
+    def __init__(self, solver, A):
+        self.solver, self.A = solver, A
+        solver.factorize(A)
+
+    def __call__(self, b):
+        return self.solver.solve(self.A, b)
+
+    def free(self):
+        self.solver.free_memory(everything=True)
+
+
 def _factorize(pattern: _Pattern, values: np.ndarray, backend: str):
     A = _csc(pattern, values)
     if backend == "pardiso":
         import pypardiso  # optional
 
-        solver = pypardiso.PyPardisoSolver()
-        A = A.tocsr()
-        solver.factorize(A)
-        return lambda b: solver.solve(A, b)
+        return _PardisoFactor(pypardiso.PyPardisoSolver(), A.tocsr())
     from scipy.sparse.linalg import splu
 
     # COLAMD: measured on the ANCF matrices (2026-12-01, 2 cores) 4x to 130x faster than the
@@ -217,9 +230,10 @@ def pardiso_available() -> bool:
 
 def choose_solver(structure, which: str = "auto"):
     """``"dense"``, ``"sparse"`` (SuperLU), ``"pardiso"`` or ``"auto"``: dense LU up to 2,500
-    reduced unknowns (measured faster there), sparse above: MKL Pardiso when pypardiso is
-    installed (``pip install dejax[fast]``; 8x faster than SuperLU on the paper's tube),
-    SuperLU otherwise."""
+    reduced unknowns (measured faster there), SuperLU (COLAMD) above. ``"pardiso"`` (MKL,
+    ``pip install -e ".[fast]"``) factorizes the paper's tube 8x faster, but whole runs
+    measured slower on the torsional strip 24x4x2 (34 s vs 15 s: MKL and XLA threads on 2
+    cores), so it is not the default."""
     if which == "dense":
         return DenseSolver()
     if which == "sparse":
@@ -228,6 +242,4 @@ def choose_solver(structure, which: str = "auto"):
         return SparseSolver("pardiso")
     if which != "auto":
         raise ValueError(f"linear solver must be auto, dense, sparse or pardiso; got {which!r}")
-    if structure.n_free <= 2500:
-        return DenseSolver()
-    return SparseSolver("pardiso") if pardiso_available() else SparseSolver()
+    return DenseSolver() if structure.n_free <= 2500 else SparseSolver()

@@ -6,6 +6,10 @@ import os
 # Tests run short simulations, where XLA's compile time dominates: skip its backend
 # optimisation passes (measured about 27 % less CPU time for the same tests).
 os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
+# One persistent compilation cache for the session's workers: a program compiled by one
+# test file is loaded, not compiled again, by the others (DEJAX_COMPILE_CACHE=0: off).
+os.environ.setdefault("DEJAX_CACHE_DIR", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                                      ".pytest_cache", "dejax-jax"))
 
 import pytest  # noqa: E402
 
@@ -16,6 +20,10 @@ def pytest_addoption(parser):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: takes minutes (compilation); skipped unless --runslow")
+    from dejax import compile_cache
+
+    if not compile_cache.disabled_by_env():
+        compile_cache.enable()
 
 
 def pytest_collection_modifyitems(config, items):

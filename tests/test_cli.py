@@ -79,3 +79,24 @@ def test_failed_run_reports_time_and_writes_nothing(tmp_path, capsys):
 def test_console_script_help():
     r = subprocess.run([sys.executable, "-m", "dejax.cli", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "run" in r.stdout and "verify" in r.stdout
+
+
+def test_compile_cache_folder_and_switches(tmp_path, monkeypatch):
+    import jax
+
+    from dejax import compile_cache
+
+    before = jax.config.jax_compilation_cache_dir
+    try:
+        folder = compile_cache.enable(tmp_path / "cache")
+        assert folder == tmp_path / "cache" and folder.is_dir()
+        assert jax.config.jax_compilation_cache_dir == str(folder)
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
+    monkeypatch.setenv("DEJAX_COMPILE_CACHE", "0")
+    assert compile_cache.disabled_by_env()
+    monkeypatch.setenv("DEJAX_COMPILE_CACHE", "1")
+    assert not compile_cache.disabled_by_env()
+    monkeypatch.setenv("DEJAX_CACHE_DIR", str(tmp_path / "elsewhere"))
+    assert compile_cache.default_dir() == tmp_path / "elsewhere"
+    assert cli.build_parser().parse_args(["--no-compile-cache", "verify"]).no_compile_cache
