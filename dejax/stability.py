@@ -70,8 +70,8 @@ def classify_failure(model: mdl.Model, loading: it.Loading, sol: it.Solution, dt
     """``sol`` with a Newton failure at dt_min reclassified as Status.INSTABILITY where the
     static tangent at the last converged sub-step has (nearly) lost positive definiteness;
     the detail names the eigenvalue ratio and the time. Other runs are returned as they are."""
-    if sol.ok or isinstance(sol.status, jax.core.Tracer) or sol.last_converged is None:
-        return sol
+    if isinstance(sol.status, jax.core.Tracer) or sol.last_converged is None or sol.ok:
+        return sol  # (inside jax transformations the status is not known: nothing to classify)
     if it.Status(int(sol.status)) != it.Status.NEWTON_FAILED:
         return sol
     last = sol.last_converged

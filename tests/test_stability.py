@@ -63,3 +63,17 @@ def test_a_plain_newton_failure_is_not_called_an_instability():
     ratio = stability.static_eigenvalue(p.model, p.loading, sol.last_converged, 0.25) / \
         stability.reference_eigenvalue(p.model, 0.25)
     assert ratio > 0.5
+
+
+def test_classification_is_skipped_inside_jax_transformations():
+    """Under jit/grad the status is a tracer: the classification must pass the Solution
+    through (Problem.simulate is differentiated by users, e.g. the README's jax.grad)."""
+    import jax
+    import jax.numpy as jnp
+
+    def classify(status):
+        sol = it.Solution(jnp.zeros(2), {}, jnp.zeros(1), jnp.zeros(1), status, jnp.asarray(0), None,
+                          last_converged=jnp.zeros(1))
+        return stability.classify_failure(None, None, sol, 1e-6).status
+
+    assert int(jax.jit(classify)(jnp.asarray(int(it.Status.NEWTON_FAILED)))) == int(it.Status.NEWTON_FAILED)
