@@ -51,19 +51,21 @@ def smallest_eigenvalue(model: mdl.Model, Ke) -> float:
     return float(eigsh(K.tocsc(), k=1, sigma=shift, which="LM", return_eigenvectors=False)[0])
 
 
+def _eigenvalue_at(model: mdl.Model, q, phi, Cv, p, dt) -> float:
+    return smallest_eigenvalue(model, _tangents(model, q, mdl.nominal_field(model, phi), Cv, dt, p))
+
+
 def static_eigenvalue(model: mdl.Model, loading: it.Loading, state: it.State, dt: float) -> float:
     """Smallest eigenvalue of the dof-scaled static tangent at ``state`` (voltages of
     ``loading`` at state.t; viscous units through a backward-Euler step of ``dt`` s)."""
     phi = loading.phi(state.t) if model.field_dirs.shape[0] else np.zeros(0)
-    E = mdl.nominal_field(model, phi)
-    return smallest_eigenvalue(model, _tangents(model, state.q, E, state.Cv, dt, state.p))
+    return _eigenvalue_at(model, state.q, phi, state.Cv, state.p, dt)
 
 
 def reference_eigenvalue(model: mdl.Model, dt: float) -> float:
     """The same at rest: reference coordinates, no voltage, Cv = I, p = 0."""
-    s0 = it.initial_state(model)
-    return smallest_eigenvalue(model, _tangents(model, s0.q, mdl.nominal_field(model, np.zeros(model.field_dirs.shape[0])),
-                                                s0.Cv, dt, s0.p))
+    return _eigenvalue_at(model, model.q0, np.zeros(model.field_dirs.shape[0]), mdl.initial_viscous_state(model),
+                          mdl.initial_pressure(model), dt)
 
 
 def classify_failure(model: mdl.Model, loading: it.Loading, sol: it.Solution, dt_min: float) -> it.Solution:
