@@ -8,12 +8,29 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-import time
+from pathlib import Path
 
 from . import compile_cache
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Help that shows each option's default, unless the text already names it or there is none."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (default in (None, False, "", argparse.SUPPRESS) or "default" in text.lower()
+                or not action.option_strings or isinstance(action, argparse._HelpAction)):
+            return text
+        shown = "x".join(str(v) for v in default) if isinstance(default, tuple) else default
+        return f"{text} (default: {shown})" if text else f"(default: {shown})"
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
     def error(self, message):  # exit code 2 with a clear message (argparse default is also 2)
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -32,6 +49,19 @@ def _positive(name):
     return conv
 
 
+def _positive_int(name):
+    def conv(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a whole number, got {text!r}") from None
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"{name} must be >= 1, got {text}")
+        return v
+
+    return conv
+
+
 def _nonneg(name):
     def conv(text):
         try:
@@ -41,6 +71,22 @@ def _nonneg(name):
         if v < 0:
             raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {text}")
         return v
+
+    return conv
+
+
+def float_list(name):
+    """argparse type: comma-separated numbers, e.g. ``10,30,50`` -> [10.0, 30.0, 50.0]."""
+
+    def conv(text):
+        parts = [v.strip() for v in text.split(",") if v.strip()]
+        try:
+            values = [float(v) for v in parts]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be comma-separated numbers, got {text!r}") from None
+        if not values:
+            raise argparse.ArgumentTypeError(f"{name} needs at least one number, got {text!r}")
+        return values
 
     return conv
 
@@ -79,7 +125,12 @@ def _common_solver_args(p):
     p.add_argument("--quasi-static", action="store_true", help="no inertia (equilibrium at every step)")
     p.add_argument("--volumetric", default="mixed", choices=("mixed", "displacement"),
                    help="volumetric treatment: element pressure (mixed, default) or the paper's pointwise penalty")
-    p.add_argument("--out", required=True, help="results file (HDF5), written atomically")
+    p.add_argument("--out", required=True, help="results file (HDF5), written atomically; a failed run writes "
+                                                "the trajectory up to its last converged step (status = failed)")
+    p.add_argument("--vtu", default=None, metavar="DIR",
+                   help="also write a ParaView time series into DIR: <out stem>.pvd + one VTU per frame "
+                        "(displacement m, potential V, nominal_field V/m, strain_norm)")
+    p.add_argument("--vtu-frames", type=_positive_int("--vtu-frames"), default=50, help="number of VTU frames (evenly spaced in time)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -145,25 +196,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _progress(quiet):
-    if quiet:
-        return None
-    last = [0.0]
-
-    def report(k, n, t, wall):
-        now = time.perf_counter()
-        if now - last[0] < 1.0 and k < n:
-            return
-        last[0] = now
-        rate = k / wall if wall > 0 else float("nan")
-        sys.stderr.write(f"\r  step {k}/{n}  t = {t:.4g} s  {rate:.0f} steps/s  ")
-        if k >= n:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-
-    return report
-
-
 def _floats(text, name):
     try:
         return [float(x) for x in text.split(",")]
@@ -171,14 +203,71 @@ def _floats(text, name):
         raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
 
 
+def _frame_times(times, frames: int) -> tuple:
+    """Grid times (s) of about ``frames`` evenly spaced VTU frames, the start and end included."""
+    import numpy as np
+
+    n = len(times) - 1
+    idx = np.unique(np.round(np.linspace(0, n, min(int(frames), n) + 1)).astype(int))
+    return tuple(float(times[i]) for i in idx)
+
+
+def _announce_long_run(problem, n_steps: int) -> None:
+    """Say the projected wall time before a run expected to exceed progress.LONG_RUN_SECONDS."""
+    from . import progress as pg
+
+    n_el = int(problem.model.dV.shape[0])
+    est = pg.projected_seconds(n_el, n_steps)
+    if est > pg.LONG_RUN_SECONDS:
+        print(f"dejax: this run is projected to take about {pg.format_long_duration(est)} "
+              f"({n_el} elements x {n_steps} steps at roughly {1e3 * pg.SECONDS_PER_ELEMENT_STEP:g} ms per "
+              f"element-step); shorten it with --t-end / --cycles, a larger --dt or a coarser --mesh",
+              file=sys.stderr)
+
+
+def _write_vtu_series(problem, states: dict, folder, stem: str) -> list:
+    """One VTU per State (displacement, potential, nominal field, strain norm) and ``stem.pvd``."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from . import outputs
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    mesh = problem.extras["mesh"]
+    entries, seen = [], set()
+    for k, st in sorted(states.items()):
+        t = float(st.t)
+        if t in seen:  # two frames taken at the same chunk end
+            continue
+        seen.add(t)
+        phi = np.asarray(problem.loading.phi(t)) if problem.loading.voltages else None
+        name = f"{stem}_{int(k):06d}.vtu"
+        outputs.write_vtu(out / name, mesh, st.q, phi, problem.model)
+        entries.append((t, name))
+    outputs.write_pvd(out / f"{stem}.pvd", entries)
+    return [out / f for _, f in entries]
+
+
 def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     import numpy as np
 
     from . import integrate as it
     from . import linsolve, stability
+    from . import progress as pg
     from .results import write_h5
 
     times = it.time_grid(t_end, dt)
+    n = len(times) - 1
+    dt_used = float(times[1] - times[0])
+    _announce_long_run(problem, n)
+    n_el = int(problem.model.dV.shape[0])
+    chunk = pg.chunk_steps(n, pg.SECONDS_PER_ELEMENT_STEP * n_el)
+    bar = pg.ProgressBar(n, float(times[-1]), quiet=args.quiet)
+    bar.compiling(f"the {problem.name} stepper ({n_el} element{'s' if n_el != 1 else ''}, {chunk}-step chunks)")
+    vtu = getattr(args, "vtu", None)
+    snapshot_times = _frame_times(times, args.vtu_frames) if vtu else (float(times[-1]),)
     sol, snaps, compile_s, run_s = it.run_chunked(
         problem.model,
         problem.loading,
@@ -187,57 +276,73 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         problem.scheme(args.rho_inf, True if args.quasi_static else None),
         it.NewtonOptions(tol=args.newton_tol, criterion=args.newton_criterion, line_search=not args.no_line_search),
         linsolve.choose_solver(problem.model.structure, solver),
-        chunk=min(500, len(times) - 1),
-        progress=_progress(args.quiet),
-        snapshot_times=(float(times[-1]),),
+        chunk=chunk,
+        progress=bar,
+        snapshot_times=snapshot_times,
         control=it.StepControl(dt_min=args.dt_min),
     )
-    iters = np.asarray(sol.iterations)
     sol = stability.classify_failure(problem.model, problem.loading, sol, args.dt_min)
+    rows = len(sol.time) if sol.ok else int(sol.fail_step) + 1  # the last converged grid step
+    bar.close(failed=not sol.ok, k=rows - 1, t=float(sol.time[rows - 1]))
+    iters = np.asarray(sol.iterations)[: rows - 1]
+    attrs = dict(
+        status="ok" if sol.ok else "failed",
+        dt=dt_used,
+        dt_requested=dt,
+        t_end=t_end,
+        steps=rows - 1,
+        steps_planned=n,
+        rho_inf=args.rho_inf,
+        newton_tol=args.newton_tol,
+        newton_criterion=args.newton_criterion,
+        quasi_static=bool(args.quasi_static or problem.quasi_static),
+        dt_min=args.dt_min,
+        cutbacks=sol.n_cutbacks,
+        dt_smallest=float(sol.dt_smallest),
+        compile_s=compile_s,
+        run_s=run_s,
+        newton_mean=float(iters.mean()) if iters.size else float("nan"),
+        newton_max=int(iters.max()) if iters.size else 0,
+        command_line=getattr(args, "command_line", ""),
+    )
+    states = {k: st for k, st in snaps.items() if k <= rows - 1}  # none past the failure
+    err = None
     if not sol.ok:
         detail = (f"the failing step was cut back {int(np.asarray(sol.cutbacks)[int(sol.fail_step)])} times, down to "
                   f"dt = {args.dt_min:g} s" if sol.n_cutbacks and int(sol.fail_step) >= 0 else "")
         detail = "; ".join(d for d in (detail, sol.detail) if d)
         err = it.SimulationError(it.Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1, detail)
-        print(f"dejax: error: {err} (no results file written)", file=sys.stderr)
+        attrs.update(fail_status=err.status.name.lower(), fail_time=err.time, fail_step=err.step,
+                     fail_reason=str(err), t_last_converged=float(sol.time[rows - 1]))
+        if sol.last_converged is not None:  # the converged sub-step nearest the failure
+            states[rows - 1] = sol.last_converged
+    q0 = np.asarray(problem.model.q0)
+    h5_states = states if not vtu else {k: states[k] for k in sorted(states)[-1:]}
+    snapshots = {k: {"t": float(st.t), "q": np.asarray(st.q), "q0": q0} for k, st in h5_states.items()}
+    write_h5(args.out, np.asarray(sol.time)[:rows], {k: np.asarray(v)[:rows] for k, v in sol.outputs.items()},
+             problem.params, iters, snapshots=snapshots, attrs=attrs)
+    if vtu:
+        frames = _write_vtu_series(problem, states, vtu, Path(args.out).stem)
+        vtu_note = f", {len(frames)} VTU frames + {Path(args.out).stem}.pvd in {vtu}"
+    else:
+        vtu_note = ""
+    if err is not None:
+        print(f"dejax: error: {err}; the trajectory up to the last converged step (t = "
+              f"{float(sol.time[rows - 1]):.6g} s, step {rows - 1} of {n}) is written to {args.out} "
+              f"(status = failed){vtu_note}", file=sys.stderr)
         return 1
-    n = len(times) - 1
-    attrs = dict(
-        status="ok",
-        dt=dt,
-        t_end=t_end,
-        rho_inf=args.rho_inf,
-        newton_tol=args.newton_tol,
-        newton_criterion=args.newton_criterion,
-        quasi_static=bool(args.quasi_static or problem.quasi_static),
-        cutbacks=sol.n_cutbacks,
-        dt_smallest=float(sol.dt_smallest),
-        compile_s=compile_s,
-        run_s=run_s,
-        newton_mean=float(iters.mean()),
-        newton_max=int(iters.max()),
-    )
-    snapshots = {k: {"t": float(st.t), "q": np.asarray(st.q), "q0": np.asarray(problem.model.q0)} for k, st in snaps.items()}
-    write_h5(args.out, sol.time, {k: np.asarray(v) for k, v in sol.outputs.items()}, problem.params, iters,
-             snapshots=snapshots, attrs=attrs)
     finals = ", ".join(f"{k} = {float(np.asarray(sol.outputs[k])[-1]):.6g}" for k in summary_outputs)
+    dt_note = f", dt = {dt_used:.6g} s (requested {dt:g} s: {n} equal steps)" if abs(dt_used - dt) > 1e-12 * dt else ""
     print(
-        f"{problem.name}: {n} steps to t = {t_end:g} s, compile {compile_s:.1f} s, run {run_s:.2f} s "
+        f"{problem.name}: {n} steps to t = {t_end:g} s{dt_note}, compile {compile_s:.1f} s, run {run_s:.2f} s "
         f"({n / max(run_s, 1e-9):.0f} steps/s), Newton {iters.mean():.2f} mean / {iters.max()} max, "
         f"{sol.n_cutbacks} cut-backs (smallest dt {float(sol.dt_smallest):.3g} s); "
-        f"final {finals} -> {args.out}"
+        f"final {finals} -> {args.out}{vtu_note}"
     )
     return 0
 
 
 def _cmd_run(args):
-    from .results import OutputPathError, check_output_path
-
-    try:
-        check_output_path(args.out)
-    except OutputPathError as e:
-        print(f"dejax: error: {e}", file=sys.stderr)
-        return 2
     if args.scenario == "block":
         from . import scenarios
 
@@ -296,9 +401,43 @@ def _cmd_verify(args):
     return 0 if ok else 1
 
 
+OUTPUT_PATHS = {
+    "run": (("out", "file"), ("vtu", "folder")),
+    "verify": (("json", "file"),),
+    "sweep": (("json", "file"),),
+    "bench": (("json", "file"),),
+    "fit": (("out", "folder"),),
+    "diagnose": (("out", "folder"),),
+    "plot": (("out", "folder"),),
+    "sensitivity": (("out", "folder"),),
+}
+"""Per verb: the arguments naming output files or folders, checked before any computation."""
+
+
+def check_outputs(args) -> None:
+    """Raise results.OutputPathError if an output path of ``args`` cannot be written."""
+    from .results import check_output_dir, check_output_path
+
+    for attr, kind in OUTPUT_PATHS.get(args.command, ()):
+        path = getattr(args, attr, None)
+        if path:
+            (check_output_path if kind == "file" else check_output_dir)(path)
+
+
 def main(argv=None) -> int:
+    import shlex
+
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.command_line = shlex.join(["dejax", *argv])
+    from .results import OutputPathError
+
+    try:
+        check_outputs(args)
+    except OutputPathError as e:
+        print(f"dejax {args.command}: error: {e}", file=sys.stderr)
+        return 2
     if not (args.no_compile_cache or compile_cache.disabled_by_env()):
         compile_cache.enable()
     try:

@@ -869,7 +869,8 @@ def run_chunked(
     is padded), so there is one compilation.
 
     Args:
-      progress: optional ``progress(steps_done, n_steps, t, wall_seconds)``.
+      progress: optional ``progress(steps_done, n_steps, t, wall_seconds)`` after each chunk;
+        after a failure steps_done counts the converged steps (t: the last converged grid time).
       snapshot_times: times (s) at which to keep the full State (taken at the first chunk
         end at or after each time; pass ``chunk`` dividing the snapshot spacing for exact times).
     Returns:
@@ -911,9 +912,10 @@ def run_chunked(
         for j in snap_idx:
             if k - m < j <= k and j not in snapshots:
                 snapshots[j] = carry.state
-        if progress is not None:
+        if progress is not None:  # after a failure: the steps that converged, not the chunk end
             jax.block_until_ready(carry.state.q)
-            progress(k, n, float(times[k]), _time.perf_counter() - t_start)
+            done = k if int(carry.status) == 0 else max(int(carry.fail_step), 0)
+            progress(done, n, float(times[done]), _time.perf_counter() - t_start)
         if int(carry.status) != 0:
             break
     jax.block_until_ready(carry.state.q)

@@ -6,7 +6,11 @@ Layout of a results file:
     /outputs/<name>          (n+1, ...) recorded outputs (SI units)
     /newton_iterations       (n,) Newton iterations per step
     /snapshots/<k>/q, Cv     optional full states at chosen steps (attrs: t)
-    attributes (root)        scenario parameters, status, dejax version, timings
+    attributes (root)        scenario parameters, status, dejax version, timings, and
+                             ``units``: JSON {attribute: unit} of the numeric ones
+
+Every dataset carries an attribute ``units`` ("1" = dimensionless; UNITS below). Files
+are created with mode 0o666 & ~umask, as ``open`` would make them.
 """
 from __future__ import annotations
 
@@ -21,8 +25,44 @@ import numpy as np
 from . import __version__
 
 
+UNITS = {
+    # outputs and time
+    "time": "s", "lateral_stretch": "1", "thickness_stretch": "1", "stretch": "1", "voltage": "V", "x_P": "m",
+    "v_P": "m/s", "field": "V/m", "twist_angle": "rad", "x_end": "m", "stress": "Pa", "newton_iterations": "1",
+    # snapshots
+    "q": "m (positions), 1 (gradient vectors)", "q0": "m (positions), 1 (gradient vectors)", "Cv": "1",
+    "strain_norm_nodes": "1", "strain_norm_gauss": "1", "potential_nodes": "V", "phi": "V", "t": "s",
+    # scenario and material parameters
+    "phi_max": "V", "phibar_max": "1", "L": "m", "h": "m", "r": "m", "lx": "m", "ly": "m", "lz": "m",
+    "thickness": "m", "length": "m", "width": "m", "turns": "1", "mesh": "1", "gauss_order": "1", "freq": "Hz",
+    "t_ramp": "s", "damping": "1/s", "mu_inf": "Pa", "K_inf": "Pa", "Jm_inf": "1", "eps": "F/m", "rho": "kg/m^3",
+    "mu": "Pa", "K": "Pa", "Jm": "1", "eta": "Pa s",
+    # run attributes
+    "dt": "s", "dt_requested": "s", "t_end": "s", "rho_inf": "1", "newton_tol": "1", "dt_min": "s",
+    "cutbacks": "1", "dt_smallest": "s", "compile_s": "s", "run_s": "s", "newton_mean": "1", "newton_max": "1",
+    "fail_time": "s", "fail_step": "1", "t_last_converged": "s", "steps": "1", "steps_planned": "1",
+}
+"""Units of the datasets and numeric attributes of a results file (SI; "1" = dimensionless)."""
+
+
+def unit_of(name: str) -> str:
+    """Unit of a dataset or attribute name (UNITS), "unknown" for a name not listed."""
+    return UNITS.get(name, "unknown")
+
+
 class OutputPathError(ValueError):
     """The results path cannot be written (missing folder, not writable, a directory, ...)."""
+
+
+def _probe_writable(folder: Path) -> bool:
+    """Whether a file can really be created in ``folder`` (catches read-only mounts, ACLs)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".dejax-probe.", dir=folder)
+    except OSError:
+        return False
+    os.close(fd)
+    os.remove(tmp)
+    return True
 
 
 def check_output_path(path) -> Path:
@@ -33,11 +73,40 @@ def check_output_path(path) -> Path:
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.exists():
         raise OutputPathError(f"cannot write {str(p)!r}: folder {str(parent)!r} does not exist")
-    if not os.access(parent, os.W_OK):
+    if not parent.is_dir():
+        raise OutputPathError(f"cannot write {str(p)!r}: {str(parent)!r} is a file, not a folder")
+    if not os.access(parent, os.W_OK) or not _probe_writable(parent):
         raise OutputPathError(f"cannot write {str(p)!r}: folder {str(parent)!r} is not writable")
     if p.exists() and not os.access(p, os.W_OK):
         raise OutputPathError(f"cannot write {str(p)!r}: the existing file is not writable")
     return p
+
+
+def check_output_dir(path) -> Path:
+    """Validate that the folder ``path`` exists writable or can be created (nothing is created);
+    raise OutputPathError otherwise."""
+    p = Path(path)
+    if p.exists():
+        if not p.is_dir():
+            raise OutputPathError(f"output folder {str(p)!r} is a file, not a folder")
+        if not os.access(p, os.W_OK) or not _probe_writable(p):
+            raise OutputPathError(f"cannot write into folder {str(p)!r}: it is not writable")
+        return p
+    ancestor = p.absolute().parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputPathError(f"cannot create folder {str(p)!r}: {str(ancestor)!r} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK) or not _probe_writable(ancestor):
+        raise OutputPathError(f"cannot create folder {str(p)!r}: {str(ancestor)!r} is not writable")
+    return p
+
+
+def file_mode() -> int:
+    """Mode of a new file under the current umask (0o666 & ~umask), as ``open`` gives."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
 
 
 def _attr(value):
@@ -51,6 +120,14 @@ def _attr(value):
     if arr.dtype == object:
         return json.dumps(value, default=str)
     return arr
+
+
+def _attr_units(attrs) -> dict:
+    """{name: unit} of the numeric attributes (strings and flags have none)."""
+    def numeric(v):
+        a = np.asarray(v)
+        return a.dtype.kind in "iuf" and not isinstance(v, (bool, np.bool_))
+    return {k: unit_of(k) for k, v in attrs.items() if k != "units" and numeric(v)}
 
 
 def write_h5(path, time, outputs: dict, params: dict | None = None, iterations=None, snapshots=None, attrs=None) -> Path:
@@ -68,8 +145,10 @@ def write_h5(path, time, outputs: dict, params: dict | None = None, iterations=N
             g = f.create_group("outputs")
             for name, val in outputs.items():
                 g.create_dataset(name, data=np.asarray(val))
+                g[name].attrs["units"] = unit_of(name)
             if iterations is not None:
                 f.create_dataset("newton_iterations", data=np.asarray(iterations))
+                f["newton_iterations"].attrs["units"] = "1"
             if snapshots:
                 sg = f.create_group("snapshots")
                 for k, snap in snapshots.items():
@@ -79,11 +158,15 @@ def write_h5(path, time, outputs: dict, params: dict | None = None, iterations=N
                             kg.attrs["t"] = float(val)
                         else:
                             kg.create_dataset(name, data=np.asarray(val))
+                            kg[name].attrs["units"] = unit_of(name)
+                    kg.attrs["t_units"] = "s"
             for k, v in (params or {}).items():
                 f.attrs[k] = _attr(v)
             for k, v in (attrs or {}).items():
                 f.attrs[k] = _attr(v)
             f.attrs["dejax_version"] = __version__
+            f.attrs["units"] = json.dumps(_attr_units(f.attrs))
+        os.chmod(tmp, file_mode())
         os.replace(tmp, p)
     except BaseException:
         if os.path.exists(tmp):

@@ -200,19 +200,27 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
 # ----------------------------------------------------------------------------- CLI
 
 
-def _floats(text):
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise SystemExit(f"dejax sweep: expected comma-separated numbers, got {text!r}") from None
+def _values(value, name):
+    """A list of floats from the parsed option (a list) or a comma-separated string."""
+    if isinstance(value, str):
+        from .cli import float_list
+
+        try:
+            return float_list(name)(value)
+        except Exception as e:  # argparse.ArgumentTypeError outside argparse
+            raise ValueError(str(e)) from None
+    return [float(v) for v in value]
 
 
 def handler(args) -> int:
-    grid = {k: _floats(getattr(args, k)) for k in SWEEPABLE if getattr(args, k) is not None}
+    from .cli import _mesh_shape
+
+    grid = {k: _values(getattr(args, k), "--" + k.replace("_", "-")) for k in SWEEPABLE
+            if getattr(args, k) is not None}
     if not grid:
         print("dejax: error: nothing to sweep: give at least one of --h --r --L --freq --phi-max", file=sys.stderr)
         return 2
-    shape = tuple(int(s) for s in args.mesh.lower().split("x"))
+    shape = _mesh_shape(args.mesh) if isinstance(args.mesh, str) else tuple(args.mesh)
     try:
         cases = cases_from_grid(grid, dict(model=args.model), field_const=args.field_const)
         rows, info = run_sweep(cases, shape, args.cycles, args.steps_per_cycle, args.method)
@@ -233,15 +241,21 @@ def handler(args) -> int:
 
 def register(subparsers):
     """Add the ``sweep`` verb: e.g. ``dejax sweep --freq 10,30,50 --phi-max 25e3 --mesh 1x4x1``."""
+    from .cli import _mesh_shape, _positive_int, float_list
+
     p = subparsers.add_parser("sweep", help="rolled-DEA parameter sweep -> per-case cycle features")
     for k, hlp in (("h", "wall thickness (m)"), ("r", "inner radius (m)"), ("L", "length (m)"),
                    ("freq", "frequency (Hz)"), ("phi_max", "peak voltage (V)")):
-        p.add_argument("--" + k.replace("_", "-"), dest=k, default=None, help=f"comma-separated {hlp}")
-    p.add_argument("--model", default="IV", choices=sorted(scenarios.TABLE2))
-    p.add_argument("--mesh", default="1x4x1", help="elements n_l x n_s x n_r (default 1x4x1)")
-    p.add_argument("--cycles", type=int, default=2)
-    p.add_argument("--steps-per-cycle", type=int, default=40)
-    p.add_argument("--method", choices=("sequential", "vmap"), default="sequential")
+        flag = "--" + k.replace("_", "-")
+        p.add_argument(flag, dest=k, type=float_list(flag), default=None,
+                       help=f"comma-separated {hlp}; unswept: h = r = 2e-3, L = 8e-3, freq = 30, phi-max = 50e3")
+    p.add_argument("--model", default="IV", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
+    p.add_argument("--mesh", type=_mesh_shape, default=(1, 4, 1), help="elements n_l x n_s x n_r")
+    p.add_argument("--cycles", type=_positive_int("--cycles"), default=2, help="voltage cycles per case")
+    p.add_argument("--steps-per-cycle", type=_positive_int("--steps-per-cycle"), default=40,
+                   help="time steps per cycle (dt = 1 / (freq x steps))")
+    p.add_argument("--method", choices=("sequential", "vmap"), default="sequential",
+                   help="one compiled run case after case, or all cases in one vmapped run")
     p.add_argument("--field-const", action="store_true", help="scale phi_max with h (constant phi_max/h)")
     p.add_argument("--json", default=None, help="also write rows + timing info as JSON")
     p.set_defaults(func=handler)

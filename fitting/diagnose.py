@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 import time as _time
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -662,7 +663,7 @@ def handler(args) -> int:
         start = fx.from_experiment(exp) if exp.effects else None
         diag = diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start, verbose=True)
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
-        print(f"dejax diagnose: error: {e}")
+        print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2
     files = write_report(diag, traces, args.out, title=f"Gap diagnosis: {exp.name}")
     print(diag.table())

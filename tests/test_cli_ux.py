@@ -1,0 +1,233 @@
+"""Issue 15: from a lab CSV to a fitted, diagnosed model. Output files readable by
+colleagues (umask), output paths checked before any work (exit 2), a failed run keeps its
+trajectory, units / actual dt / version / command line in HDF5, a VTU time series,
+consistent errors, help with defaults, honest progress."""
+import json
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from dejax import cli
+from dejax import progress as pg
+from dejax.results import check_output_dir, check_output_path, OutputPathError, write_h5
+
+
+def _blocked(tmp_path):
+    """A regular file: no path under it can be written by anyone, root included."""
+    f = tmp_path / "a-file"
+    f.write_text("x")
+    return f
+
+
+# ----------------------------------------------------------------------------- files
+
+
+@pytest.mark.parametrize("mask, mode", [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_results_file_mode_follows_umask(tmp_path, mask, mode):
+    old = os.umask(mask)
+    try:
+        p = write_h5(tmp_path / "r.h5", np.linspace(0, 1, 3), {"x_P": np.zeros(3)})
+    finally:
+        os.umask(old)
+    assert os.stat(p).st_mode & 0o777 == mode
+
+
+def test_output_checks_name_the_path(tmp_path):
+    bad = _blocked(tmp_path)
+    with pytest.raises(OutputPathError, match="is a file, not a folder"):
+        check_output_path(bad / "x.h5")
+    with pytest.raises(OutputPathError, match="a-file"):
+        check_output_dir(bad / "sub")
+    assert check_output_dir(tmp_path / "new" / "deeper") == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists()  # checking creates nothing
+
+
+def _forbid(monkeypatch, target):
+    def boom(*a, **k):
+        raise AssertionError(f"{target} was called")
+
+    monkeypatch.setattr(target, boom)
+
+
+@pytest.mark.parametrize(
+    "argv, compute",
+    [
+        (["run", "block", "--t-end", "0.01", "--dt", "0.01", "--out", "{bad}/x.h5"], "dejax.integrate.run_chunked"),
+        (["run", "block", "--t-end", "0.01", "--dt", "0.01", "--out", "{ok}/x.h5", "--vtu", "{bad}/vtu"],
+         "dejax.integrate.run_chunked"),
+        (["verify", "--quick", "--json", "{bad}/v.json"], "dejax.verify.main"),
+        (["sweep", "--freq", "10", "--json", "{bad}/s.json"], "dejax.sweep.run_sweep"),
+        (["bench", "--cases", "B1", "--json", "{bad}/b.json"], "dejax.bench.main"),
+        (["fit", "data/examples/vhb4910_uniaxial.toml", "--out", "{bad}/fit"], "fitting.experiment.run_experiment"),
+        (["diagnose", "data/examples/block_example.toml", "--out", "{bad}/rep"], "fitting.diagnose.diagnose"),
+    ],
+)
+def test_unwritable_output_exits_2_before_any_work(tmp_path, capsys, monkeypatch, argv, compute):
+    bad = _blocked(tmp_path)
+    _forbid(monkeypatch, compute)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    monkeypatch.chdir(root)
+    argv = [a.format(bad=bad, ok=tmp_path) for a in argv]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "error" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
+# ----------------------------------------------------------------------------- runs
+
+
+def test_h5_units_actual_dt_version_command_line_and_vtu_series(tmp_path, capsys):
+    import meshio
+
+    out, vtu = tmp_path / "b.h5", tmp_path / "vtu"
+    argv = ["run", "block", "--t-end", "0.05", "--dt", "0.03", "--out", str(out), "--vtu", str(vtu),
+            "--vtu-frames", "2", "--quiet"]
+    assert cli.main(argv) == 0
+    assert "dt = 0.025 s (requested 0.03 s" in capsys.readouterr().out
+    with h5py.File(out) as f:
+        assert f.attrs["dt"] == pytest.approx(0.025) and f.attrs["dt_requested"] == 0.03
+        assert np.allclose(np.diff(f["time"][()]), f.attrs["dt"])
+        assert f.attrs["dejax_version"] and f.attrs["command_line"] == "dejax " + " ".join(argv)
+        datasets = []
+        f.visititems(lambda name, obj: datasets.append(obj) if isinstance(obj, h5py.Dataset) else None)
+        assert len(datasets) >= 5
+        for d in datasets:
+            assert d.attrs["units"] not in ("", "unknown"), d.name
+        assert f["outputs/voltage"].attrs["units"] == "V" and f["time"].attrs["units"] == "s"
+        units = json.loads(f.attrs["units"])
+        numeric = [k for k, v in f.attrs.items() if np.asarray(v).dtype.kind in "iuf"]
+        assert set(numeric) <= set(units) and "unknown" not in units.values()
+        assert units["phi_max"] == "V" and units["mu_inf"] == "Pa" and units["eta"] == "Pa s"
+        volt = f["outputs/voltage"][()]
+    pvd = (vtu / "b.pvd").read_text()
+    files = sorted(p.name for p in vtu.glob("*.vtu"))
+    assert len(files) == 3 and all(name in pvd for name in files)  # t = 0, 0.025, 0.05
+    last = meshio.read(vtu / files[-1])
+    for key in ("displacement", "potential", "nominal_field", "strain_norm"):
+        assert key in last.point_data, key
+    assert np.max(last.point_data["potential"]) == pytest.approx(volt[-1], rel=1e-9)
+    assert np.max(np.abs(last.point_data["nominal_field"][:, 2])) == pytest.approx(volt[-1] / 1e-3, rel=1e-6)
+    first = meshio.read(vtu / files[0])
+    assert np.max(np.abs(first.point_data["displacement"])) == 0.0
+
+
+def test_failed_run_keeps_its_trajectory_and_progress_stays_honest(tmp_path, capsys, monkeypatch):
+    """Far above pull-in the block fails; the file holds the run up to the last converged
+    step, the bar never reads 100 %, and the command exits 1 saying where the data went."""
+    seen = []
+    call = pg.ProgressBar.__call__
+    monkeypatch.setattr(pg.ProgressBar, "__call__", lambda self, k, n, t, w: (seen.append(k), call(self, k, n, t, w)))
+    out = tmp_path / "fail.h5"
+    rc = cli.main(["run", "block", "--hyperelastic", "--phi-max", "200e3", "--t-end", "1", "--dt", "1e-2",
+                   "--out", str(out)])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert "simulation failed at t = " in err and f"written to {out}" in err
+    assert "compiling the block stepper" in err and "failed after step" in err and "100%" not in err
+    with h5py.File(out) as f:
+        assert f.attrs["status"] == "failed"
+        fail_t, step = float(f.attrs["fail_time"]), int(f.attrs["fail_step"])
+        assert "instability" in f.attrs["fail_reason"] and f.attrs["fail_status"] == "instability"
+        t = f["time"][()]
+        lam = f["outputs/lateral_stretch"][()]
+        assert 0 < t[-1] < fail_t and t[-1] == pytest.approx(fail_t - 1e-2)
+        assert t.size == step and np.all(np.isfinite(lam)) and lam[-1] > lam[0]
+        assert f["newton_iterations"].shape == (t.size - 1,)
+        (snap,) = f["snapshots"].values()  # the converged sub-step nearest the failure
+        assert t[-1] <= snap.attrs["t"] < fail_t
+    assert max(seen) == t.size - 1 < 100  # progress counted converged steps, not the chunk end
+    assert [p.name for p in tmp_path.iterdir()] == ["fail.h5"]
+
+
+def test_long_run_announces_its_projected_wall_time(tmp_path, capsys, monkeypatch):
+    _forbid(monkeypatch, "dejax.integrate.run_chunked")
+    with pytest.raises(AssertionError, match="run_chunked was called"):
+        cli.main(["run", "rolled", "--out", str(tmp_path / "r.h5"), "--quiet"])
+    err = capsys.readouterr().err
+    assert "projected to take about" in err and " h (" in err and "960 elements x 3334 steps" in err
+
+
+# ----------------------------------------------------------------------------- arguments and help
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["sweep", "--freq", "a,b"], "--freq must be comma-separated numbers, got 'a,b'"),
+        (["sweep", "--freq", "10", "--mesh", "abc"], "mesh must look like 12x20x4"),
+        (["sweep", "--freq", "10", "--cycles", "0"], "--cycles must be >= 1"),
+        (["run", "block", "--out", "x.h5", "--vtu-frames", "0"], "--vtu-frames must be >= 1"),
+    ],
+)
+def test_bad_values_are_argparse_errors_exit_2(capsys, argv, message):
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "invalid literal" not in err
+
+
+def test_diagnose_errors_go_to_stderr(tmp_path, capsys):
+    rc = cli.main(["diagnose", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "rep")])
+    assert rc == 2
+    cap = capsys.readouterr()
+    assert "missing.toml" in cap.err and "error" not in cap.out
+
+
+def _verbs(parser):
+    """(name, parser) of every verb and run scenario."""
+    import argparse
+
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, sub in a.choices.items():
+                yield name, sub
+                yield from ((f"{name} {n}", p) for n, p in _verbs(sub))
+
+
+def test_every_help_shows_defaults():
+    verbs = dict(_verbs(cli.build_parser()))
+    assert {"run block", "run rolled", "run torsional", "verify", "bench", "sweep", "fit", "diagnose"} <= set(verbs)
+    for name, p in verbs.items():
+        text = " ".join(p.format_help().split())
+        for a in p._actions:
+            if a.option_strings and a.default not in (None, False, "") and a.dest != "help":
+                help_text = " ".join((a.help or "").split())
+                assert "default" in help_text.lower() or "(default: " in text, (name, a.dest)
+                shown = " ".join(p._get_formatter()._get_help_string(a).split())
+                assert "default" in shown.lower(), (name, a.dest)
+    block = " ".join(verbs["run block"].format_help().split())
+    assert "peak voltage phi_m (V) (default: 12000.0)" in block and "(default: 1x1x1)" in block
+
+
+# ----------------------------------------------------------------------------- progress
+
+
+def test_progress_line_and_honest_failure():
+    import io
+
+    s = pg.format_line(50, 100, 0.5, 1.0, 2.0)
+    assert "50%" in s and "step 50/100" in s and "t = 0.5/1 s" in s and "25 steps/s" in s and "ETA 0:00:02" in s
+    buf = io.StringIO()
+    bar = pg.ProgressBar(100, 1.0, stream=buf, interval=0.0)
+    bar.compiling("x")
+    bar(100, 100, 1.0, 1.0)  # the chunk end a failure hides
+    bar.close(failed=True, k=42, t=0.42)
+    last = buf.getvalue().rstrip("\n").splitlines()[-1]
+    assert last.startswith("failed after step 42/100 (42%") and "100%" not in last
+    quiet = io.StringIO()
+    q = pg.ProgressBar(10, 1.0, quiet=True, stream=quiet)
+    q.compiling()
+    q(10, 10, 1.0, 1.0)
+    q.close()
+    assert quiet.getvalue() == ""
+
+
+def test_chunks_are_small_and_projection_scales():
+    assert pg.chunk_steps(3000, 4e-4) == 30  # 1 % of the run
+    assert pg.chunk_steps(3334, 1.92) == 1  # paper tube: one step per update
+    assert pg.chunk_steps(5, 1e-4) == 1
+    assert pg.projected_seconds(960, 3334) > 3600 > pg.projected_seconds(1, 3000)
