@@ -33,6 +33,16 @@ def _freq(attrs):
         return None
 
 
+def axis_label(name: str, unit: str | None = None) -> str:
+    """``name (unit)``; dimensionless ("1") as ``name (-)``; the unit from results.UNITS if not given."""
+    from .results import unit_of
+
+    unit = unit or unit_of(name)
+    if unit == "unknown":
+        return name
+    return f"{name} ({'-' if unit == '1' else unit})"
+
+
 def plot_x(t, x, table=None, ax=None, label=None):
     plt = _plt()
     if ax is None:
@@ -155,7 +165,7 @@ def plot_file(path, out_dir=None) -> list[Path]:
         fig, axs = plt.subplots(len(rest), 1, figsize=(6, 2.2 * len(rest)), sharex=True, squeeze=False)
         for ax, k in zip(axs[:, 0], rest):
             ax.plot(t, o[k], lw=1)
-            ax.set_ylabel(k)
+            ax.set_ylabel(axis_label(k, res.get("units", {}).get(k)))
             ax.grid(alpha=0.3)
         axs[-1, 0].set_xlabel("t (s)")
         save(fig, "outputs")

@@ -175,8 +175,13 @@ def write_h5(path, time, outputs: dict, params: dict | None = None, iterations=N
     return p
 
 
+def _text(v) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
 def read_h5(path) -> dict:
-    """Read a results file into a dict: time, outputs (dict), attrs (dict), iterations, snapshots."""
+    """Read a results file into a dict: time, outputs (dict), attrs (dict), iterations, snapshots,
+    units ({output name: unit}, from the datasets' ``units`` attributes, else UNITS)."""
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"results file {str(p)!r} does not exist")
@@ -187,6 +192,7 @@ def read_h5(path) -> dict:
             "attrs": {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()},
             "iterations": f["newton_iterations"][()] if "newton_iterations" in f else None,
             "snapshots": {},
+            "units": {k: _text(f["outputs"][k].attrs.get("units", unit_of(k))) for k in f["outputs"]},
         }
         if "snapshots" in f:
             for k in f["snapshots"]:

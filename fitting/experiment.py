@@ -67,6 +67,9 @@ class _Hashable:
         return type(other) is type(self) and other._key() == self._key()
 
 
+CHANNEL_UNITS = {"stretch": "1", "displacement": "m", "stress": "Pa"}
+"""SI units of the response channels a fit compares (after the trace's unit conversion)."""
+
 FIT_STEP_CONTROL = None
 """Forward models of fits take the user's steps without cut-back: a differentiated run
 with cut-back replays its sub-steps (a second forward pass and a second compiled
@@ -111,12 +114,15 @@ class BlockForward(_Hashable):
     def __init__(self, n_units: int, L: float = 1e-3, output: str = "lateral_stretch", rho_inf: float = 0.8):
         self.n_units, self.L, self.output, self.rho_inf = int(n_units), float(L), output, float(rho_inf)
 
-    def __call__(self, params, data):
+    def simulate(self, params, data):
         mat = material_from(params, self.n_units)
         p = scenarios.block(L=self.L, material=mat, voltage=Interp(data["volt_t"], data["volt_v"]),
                             damping=params.get("c_d", 0.0))
-        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
-                          control=FIT_STEP_CONTROL)
+        return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
+                           control=FIT_STEP_CONTROL)
+
+    def __call__(self, params, data):
+        sol = self.simulate(params, data)
         return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
@@ -128,12 +134,15 @@ class RolledForward(_Hashable):
         self.n_units, self.h, self.r, self.L = int(n_units), float(h), float(r), float(L)
         self.shape, self.rho_inf, self.output = tuple(int(s) for s in shape), float(rho_inf), output
 
-    def __call__(self, params, data):
+    def simulate(self, params, data):
         mat = material_from(params, self.n_units)
         p = scenarios.rolled(mat, h=self.h, r=self.r, L=self.L, shape=self.shape,
                              voltage=Interp(data["volt_t"], data["volt_v"]), damping=params.get("c_d", 0.0))
-        sol = it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
-                          control=FIT_STEP_CONTROL)
+        return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
+                           control=FIT_STEP_CONTROL)
+
+    def __call__(self, params, data):
+        sol = self.simulate(params, data)
         return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
@@ -165,7 +174,7 @@ def uniaxial_target(name, time, stretch, stress, n_steps: int, voltage=None, max
         data["volt_t"] = jnp.asarray(time[keep] if knots is None else time)
         data["volt_v"] = jnp.asarray(np.asarray(voltage, float)[keep] if knots is None else voltage)
     return Target(name, stress[idx], data, t=time[idx], x=stretch[idx], weight=weight, ylabel="nominal stress (Pa)",
-                  xlabel="stretch")
+                  xlabel="stretch", unit="Pa")
 
 
 def triangle_knots(time, stretch):
@@ -246,7 +255,8 @@ def from_experiment(exp, n_steps: int | None = None, max_points: int | None = No
             data = dict(times=jnp.linspace(0.0, float(tr.time[-1]), N + 1), volt_t=jnp.asarray(tr.time),
                         volt_v=jnp.asarray(v), t_obs=jnp.asarray(tr.time[idx]))
             tg = Target(tr.name, y[idx], data, t=tr.time[idx], x=np.asarray(v)[idx], weight=tr.weight,
-                        ylabel=f"{channel} (SI)", xlabel="voltage (V)")
+                        ylabel=f"{channel} ({CHANNEL_UNITS[channel]})", xlabel="voltage (V)",
+                        unit=CHANNEL_UNITS[channel])
             (targets if tr.role == "fit" else holdout).append(tg)
     else:
         raise ValueError(f"dejax fit: scenario {sc!r} is not supported (uniaxial, block, rolled)")

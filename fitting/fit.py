@@ -87,6 +87,16 @@ def apply_params(model, params: Mapping[str, Any]):
     return model
 
 
+def param_unit(name: str) -> str:
+    """SI unit of a fit parameter name (mu_inf, mu_1, eta_2, c_d, ...); "1" = dimensionless."""
+    from dejax.results import unit_of
+
+    if name == "c_d":
+        return "1/s"
+    g = PARAM_PATTERN.match(name)
+    return unit_of(g.group(2) if g and g.group(2) else name)
+
+
 def material_params(material, damping=None) -> dict:
     """All named parameters of a Material (and c_d if given) as floats."""
     p = {k: float(getattr(material, k)) for k in ("mu_inf", "K_inf", "Jm_inf", "eps", "rho")}
@@ -126,7 +136,8 @@ class Target:
     name: label; y: (n,) measured values; data: pytree handed to ``forward``;
     t: (n,) abscissa for plots (time); x: (n,) optional second variable for loop
     plots (stretch, voltage); weight: loss weight; scale: normalization
-    (default: the trace amplitude); ylabel/xlabel: plot labels.
+    (default: the trace amplitude); ylabel/xlabel: plot labels; unit: unit of y (SI, "1" =
+    dimensionless; shown with the RMS).
     """
 
     name: str
@@ -138,6 +149,7 @@ class Target:
     scale: float | None = None
     ylabel: str = "y"
     xlabel: str = "x"
+    unit: str = ""
 
     def __post_init__(self):
         self.y = np.asarray(self.y, dtype=float)
@@ -149,6 +161,22 @@ class Target:
 # ----------------------------------------------------------------------------- compiled pieces
 
 _CACHE: dict = {}
+
+
+def explain_nonfinite(forward, params: Mapping[str, float], target: Target) -> str:
+    """Why ``forward`` predicts ``target`` as non-finite at ``params``: when the forward can
+    simulate (``forward.simulate(params, data)`` -> dejax Solution), the time (s) and cause
+    of the failed simulation; otherwise only the trace."""
+    sim = getattr(forward, "simulate", None)
+    if sim is None:
+        return f"trace {target.name!r}: the prediction is not finite"
+    from dejax.integrate import SimulationError, Status
+
+    sol = sim({k: jnp.asarray(v, dtype=float) for k, v in params.items()}, target.data)
+    if int(sol.status) != 0:
+        err = SimulationError(Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1)
+        return f"trace {target.name!r}: {err}"
+    return f"trace {target.name!r}: the simulation completed but its prediction is not finite (check the data)"
 
 
 def _fns(forward, free: tuple, fixed: tuple):
@@ -215,14 +243,16 @@ class FitResult:
     at_bound: list
 
     def table(self) -> str:
-        lines = [f"{'parameter':>10} {'initial':>12} {'fitted':>12} {'std.err':>11} {'rel.err':>8}"]
+        lines = [f"{'parameter':>10} {'initial':>12} {'fitted':>12} {'std.err':>11} {'rel.err':>8}  unit"]
         for k in self.free:
             lines.append(f"{k:>10} {self.p0[k]:12.5g} {self.params[k]:12.5g} {self.stderr[k]:11.3g} "
-                         f"{100 * self.rel_stderr[k]:7.2f}%" + ("  (at bound)" if k in self.at_bound else ""))
+                         f"{100 * self.rel_stderr[k]:7.2f}%  {param_unit(k)}"
+                         + ("  (at bound)" if k in self.at_bound else ""))
         lines.append(f"loss {self.loss0:.4g} -> {self.loss:.4g} in {self.n_evals} evaluations, {self.seconds:.1f} s")
-        lines.append(f"{'trace':>24} {'role':>8} {'RMS':>12} {'RMS/amp':>8}")
+        lines.append(f"{'trace':>24} {'role':>8} {'RMS':>12} {'RMS/amp':>8}  unit")
         for name, r in self.rms.items():
-            lines.append(f"{name:>24} {r['role']:>8} {r['rms']:12.4g} {100 * r['rel_rms']:7.3f}%")
+            lines.append(f"{name:>24} {r['role']:>8} {r['rms']:12.4g} {100 * r['rel_rms']:7.3f}%  "
+                         f"{r.get('unit') or '?'}")
         if len(self.free) > 1:
             lines.append("correlation matrix:")
             lines.append(" " * 10 + " ".join(f"{k:>8}" for k in self.free))
@@ -354,13 +384,17 @@ def fit(
     lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
 
     n_evals = [0]
+    failing = []  # names of the traces whose loss was not finite at the last evaluation
 
     def value_and_grad(theta):
         val, g = 0.0, np.zeros_like(theta)
+        failing.clear()
         for t, c in zip(targets, coef):
             v, gi = vg(jnp.asarray(theta), lo_j, hi_j, fixed_vals, t.data, jnp.asarray(t.y), c)
             val += float(v)
             g += np.asarray(gi)
+            if not np.isfinite(float(v)):
+                failing.append(t.name)
         n_evals[0] += 1
         if not np.isfinite(val):
             return np.inf, np.zeros_like(theta)
@@ -371,10 +405,14 @@ def fit(
             print_fn(msg)
 
     theta = box.to_theta(p0)
+    say(f"[fit] compiling the forward model and its gradient, first evaluation on {len(targets)} trace(s) ...")
     f, g = value_and_grad(theta)
     loss0 = f
     if not np.isfinite(f):
-        raise FloatingPointError("fit: the loss is not finite at the initial parameters (simulation failed?)")
+        p_init = {k: float(params0[k]) for k in params0}
+        why = "; ".join(explain_nonfinite(forward, p_init, t) for t in targets if t.name in failing)
+        raise FloatingPointError(f"fit: the loss is not finite at the initial parameters: {why or 'no trace failed'}")
+    say(f"[fit] first evaluation done in {_time.perf_counter() - tic:.1f} s")
     history = [(0, "init", f)]
     say(f"[fit] {len(free)} free parameter(s), {len(targets)} target(s); initial loss {f:.6g}")
     best = (f, theta.copy())
@@ -389,7 +427,7 @@ def fit(
             if np.isfinite(fc):
                 break
         if not np.isfinite(fc):
-            say(f"[fit] adam {i + 1:4d}: simulation failed along the step, stopping Adam")
+            say(f"[fit] adam {i + 1:4d}: simulation failed along the step (trace {', '.join(failing)}), stopping Adam")
             break
         theta, f, g = cand, fc, gc
         if f < best[0]:
@@ -459,7 +497,7 @@ def fit(
             pr = np.asarray(resid(logp, fixed_vals, t.data, jnp.zeros_like(jnp.asarray(t.y)), 1.0))
             preds[t.name] = pr
             e = float(np.sqrt(np.mean((pr - t.y) ** 2)))
-            rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.scale, n=int(t.y.size))
+            rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.scale, n=int(t.y.size), unit=t.unit)
     res = FitResult(params, list(free), {k_: float(v) for k_, v in zip(free, p0)},
                     {k_: (float(a), float(b)) for k_, a, b in zip(free, lo, hi)}, stderr, rel, corr, cov,
                     float(f), float(loss0), history, rms, preds, targets, holdout, n_evals[0],

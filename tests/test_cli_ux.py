@@ -231,3 +231,20 @@ def test_chunks_are_small_and_projection_scales():
     assert pg.chunk_steps(3334, 1.92) == 1  # paper tube: one step per update
     assert pg.chunk_steps(5, 1e-4) == 1
     assert pg.projected_seconds(960, 3334) > 3600 > pg.projected_seconds(1, 3000)
+
+
+def test_outputs_figure_axes_carry_units(tmp_path, monkeypatch):
+    import matplotlib.axes
+
+    from dejax import plot
+    from dejax.results import read_h5
+
+    t = np.linspace(0.0, 1.0, 11)
+    h5 = write_h5(tmp_path / "r.h5", t, {"v_P": np.sin(t), "voltage": 1e3 * t, "thickness_stretch": 1 - 0.1 * t})
+    assert read_h5(h5)["units"] == {"v_P": "m/s", "voltage": "V", "thickness_stretch": "1"}
+    labels = []
+    setter = matplotlib.axes.Axes.set_ylabel
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_ylabel", lambda self, s, *a, **k: (labels.append(s),
+                                                                                       setter(self, s, *a, **k))[1])
+    plot.plot_file(h5, tmp_path / "png")
+    assert {"v_P (m/s)", "voltage (V)", "thickness_stretch (-)"} <= set(labels)

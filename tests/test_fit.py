@@ -118,3 +118,45 @@ def test_fit_verb_on_example_experiment(tmp_path, capsys):
     assert d["rms"]["vhb4910_1.5_0.03"]["role"] == "holdout"
     assert (tmp_path / "loop_vhb4910_1.5_0.05.png").exists()
     assert "RMS" in capsys.readouterr().out
+
+
+def _linear_targets(bad=None):
+    """Two traces of y = mu_inf * x (Pa); ``bad``: the trace whose prediction is NaN."""
+    x = jnp.linspace(0.0, 1.0, 5)
+    return [F.Target(name, np.asarray(2e4 * x), {"x": x, "nan": jnp.asarray(np.nan if name == bad else 0.0)},
+                     unit="Pa") for name in ("slow", "fast")]
+
+
+def _linear(params, data):
+    return params["mu_inf"] * data["x"] + data["nan"]
+
+
+def test_fit_table_shows_units_of_parameters_and_rms():
+    res = F.fit(_linear, {"mu_inf": 1e4}, ["mu_inf"], {"mu_inf": (1e3, 1e5)}, _linear_targets(), adam_steps=0,
+                lbfgs_steps=3, covariance=False, verbose=False)
+    lines = res.table().splitlines()
+    assert lines[0].endswith("unit") and lines[1].split()[0] == "mu_inf" and lines[1].split()[-1] == "Pa"
+    rms_rows = [line for line in lines if line.split()[:1] in (["slow"], ["fast"])]
+    assert len(rms_rows) == 2 and all(r.split()[-1] == "Pa" for r in rms_rows)
+    assert res.rms["slow"]["unit"] == "Pa"
+    assert F.param_unit("eta_2") == "Pa s" and F.param_unit("c_d") == "1/s" and F.param_unit("Jm_1") == "1"
+
+
+def test_fit_with_a_failing_trace_names_it(capsys):
+    with pytest.raises(FloatingPointError, match="trace 'fast': the prediction is not finite") as e:
+        F.fit(_linear, {"mu_inf": 1e4}, ["mu_inf"], None, _linear_targets(bad="fast"), adam_steps=1, lbfgs_steps=0)
+    assert "'slow'" not in str(e.value)
+    assert "[fit] compiling the forward model" in capsys.readouterr().out
+
+
+def test_failed_simulation_of_a_trace_is_explained_with_time_and_cause():
+    """Stretching to 3 with Jm_inf = 1 reaches the Gent limit near stretch 1.7 (t ~ 0.35 s)."""
+    t = np.linspace(0.0, 1.0, 11)
+    lam = 1.0 + 2.0 * t
+    tg = uniaxial_target("too-far", t, lam, np.zeros_like(t), 10)
+    params = dict(mu_inf=20e3, K_inf=2e8, Jm_inf=1.0, eps=4.7e-11, rho=960.0)
+    msg = F.explain_nonfinite(UniaxialForward(0), params, tg)
+    assert msg.startswith("trace 'too-far': simulation failed at t = ")
+    t_fail = float(msg.split("t = ")[1].split(" s")[0])
+    assert 0.2 <= t_fail <= 0.5
+    assert "Gent" in msg or "Newton" in msg
