@@ -182,6 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("verify", help="run the verification cases against independent references")
     v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
     v.add_argument("--json", default=None, help="also write the table as JSON to this path")
+    v.add_argument("--quiet", action="store_true", help="no progress output")
 
     from . import bench
 
@@ -397,7 +398,7 @@ def _cmd_run(args):
 def _cmd_verify(args):
     from . import verify
 
-    ok = verify.main(quick=args.quick, json_path=args.json)
+    ok = verify.main(quick=args.quick, json_path=args.json, quiet=args.quiet)
     return 0 if ok else 1
 
 

@@ -137,12 +137,14 @@ def _batched(M, Lg, G, out_fn, scheme, newton):
 
 
 def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="sequential", rho_inf=0.8,
-              newton=it.NewtonOptions(), point="P", keep_series=False):
+              newton=it.NewtonOptions(), point="P", keep_series=False, progress=None):
     """Run every case; returns (rows, info).
 
     rows: list of dicts (the case's parameters + case_features + ok/status; with
     keep_series the time series under "series"). info: method, n_devices, wall_s
     (total, compilation included), first_s (wall time of the first case / batch call).
+    progress: optional ``progress(cases_done, n_cases, wall_s, ok)`` after each case
+    (sequential) or once after the batch (vmap).
     """
     cases = [dict(c) for c in cases]
     probs, models, loadings = _build(cases, shape, point)
@@ -160,6 +162,8 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
             first_s = first_s if first_s is not None else time.perf_counter() - t0
             results.append((np.asarray(sol.time), {k: np.asarray(v) for k, v in sol.outputs.items()},
                             int(sol.status)))
+            if progress is not None:
+                progress(len(results), len(cases), time.perf_counter() - tic, results[-1][2] == 0)
     elif method == "vmap":
         n_dev = len(jax.devices())
         n = len(cases)
@@ -181,6 +185,8 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
         first_s = time.perf_counter() - t0
         for i in range(n):
             results.append((grids[i], {k: np.asarray(v[i]) for k, v in outs.items()}, int(status[i])))
+        if progress is not None:
+            progress(n, n, time.perf_counter() - tic, all(r[2] == 0 for r in results))
     else:
         raise ValueError(f"method must be 'sequential' or 'vmap', got {method!r}")
     wall = time.perf_counter() - tic
@@ -212,6 +218,18 @@ def _values(value, name):
     return [float(v) for v in value]
 
 
+def case_progress(stream):
+    """A ``run_sweep`` progress callback writing ``case k/n (x s, ETA h:mm:ss)`` lines to ``stream``."""
+    from .progress import format_duration
+
+    def report(k, n, wall, ok):
+        eta = wall / k * (n - k) if k else float("nan")
+        stream.write(f"  case {k}/{n}{'' if ok else ' FAILED'}  {wall:.1f} s  ETA {format_duration(eta)}\n")
+        stream.flush()
+
+    return report
+
+
 def handler(args) -> int:
     from .cli import _mesh_shape
 
@@ -223,7 +241,11 @@ def handler(args) -> int:
     shape = _mesh_shape(args.mesh) if isinstance(args.mesh, str) else tuple(args.mesh)
     try:
         cases = cases_from_grid(grid, dict(model=args.model), field_const=args.field_const)
-        rows, info = run_sweep(cases, shape, args.cycles, args.steps_per_cycle, args.method)
+        report = None if getattr(args, "quiet", False) else case_progress(sys.stderr)
+        if report is not None:
+            sys.stderr.write(f"compiling the tube stepper ({'x'.join(map(str, shape))} elements; the first "
+                             f"{'case' if args.method == 'sequential' else 'batch'} includes it) ...\n")
+        rows, info = run_sweep(cases, shape, args.cycles, args.steps_per_cycle, args.method, progress=report)
     except ValueError as e:
         print(f"dejax: error: {e}", file=sys.stderr)
         return 2
@@ -258,5 +280,6 @@ def register(subparsers):
                    help="one compiled run case after case, or all cases in one vmapped run")
     p.add_argument("--field-const", action="store_true", help="scale phi_max with h (constant phi_max/h)")
     p.add_argument("--json", default=None, help="also write rows + timing info as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=handler)
     return p

@@ -195,14 +195,43 @@ CASES = {
 }
 
 
-def run_all(quick: bool = False) -> list[Check]:
-    rows = []
-    rows += element_vs_chrono()
-    rows += block_vs_closed_form() if not quick else block_vs_closed_form(phis=(8e3, 16e3))
-    rows += block_vs_reduced() if not quick else block_vs_reduced(phis=(12e3,), shapes=((1, 1, 1),), t_end=1.5)
-    rows += generalized_alpha_order()
-    rows += generalized_alpha_energy()
+def check_groups(quick: bool = False) -> list:
+    """[(label, () -> list[Check])] of the verification, in the order they run."""
+    return [
+        ("element vs Project Chrono", element_vs_chrono),
+        ("block vs closed-form Gent equilibrium",
+         block_vs_closed_form if not quick else lambda: block_vs_closed_form(phis=(8e3, 16e3))),
+        ("block vs reduced model (diffrax)", block_vs_reduced if not quick else
+         lambda: block_vs_reduced(phis=(12e3,), shapes=((1, 1, 1),), t_end=1.5)),
+        ("generalized-alpha order", generalized_alpha_order),
+        ("generalized-alpha energy", generalized_alpha_energy),
+    ]
+
+
+def run_all(quick: bool = False, groups=None, progress=None) -> list[Check]:
+    """Run the check groups (default ``check_groups(quick)``); ``progress(k, n, label, wall_s)``
+    is called before group k (1-based) and with k = n + 1, label "done" at the end."""
+    import time
+
+    groups = check_groups(quick) if groups is None else groups
+    rows, tic = [], time.perf_counter()
+    for k, (label, run) in enumerate(groups, 1):
+        if progress is not None:
+            progress(k, len(groups), label, time.perf_counter() - tic)
+        rows += run()
+    if progress is not None:
+        progress(len(groups) + 1, len(groups), "done", time.perf_counter() - tic)
     return rows
+
+
+def stderr_progress(k: int, n: int, label: str, wall: float) -> None:
+    """``run_all`` progress on stderr: ``[verify 2/5] label ... (12 s so far)``."""
+    import sys
+
+    text = (f"[verify] {n} groups done in {wall:.0f} s" if k > n else
+            f"[verify {k}/{n}] {label} ... ({wall:.0f} s so far; each group compiles its simulations)")
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
 
 
 def format_table(rows: list[Check]) -> str:
@@ -217,8 +246,8 @@ def format_table(rows: list[Check]) -> str:
     return "\n".join(lines)
 
 
-def main(quick: bool = False, json_path=None) -> bool:
-    rows = run_all(quick)
+def main(quick: bool = False, json_path=None, quiet: bool = False) -> bool:
+    rows = run_all(quick, progress=None if quiet else stderr_progress)
     print(format_table(rows))
     if json_path:
         Path(json_path).write_text(json.dumps([dict(dataclasses.asdict(r), passed=r.passed) for r in rows], indent=2))

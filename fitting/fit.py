@@ -470,6 +470,7 @@ def fit(
     # --- covariance, errors
     k = len(free)
     if covariance:
+        say("[fit] standard errors: compiling the Jacobian of the residuals ...")
         Js, rs = [], []
         for t, c in zip(targets, coef):
             Js.append(np.asarray(jac(logp, fixed_vals, t.data, jnp.asarray(t.y), c)))
@@ -490,6 +491,7 @@ def fit(
     rel = {k_: float(s) for k_, s in zip(free, se_log)}
     at_bound = [k_ for k_, v, a, b in zip(free, p_opt, lo, hi) if v < a * 1.001 or v > b / 1.001]
     # --- predictions and RMS
+    say(f"[fit] predicting {len(targets) + len(holdout)} trace(s) ({len(holdout)} held out) ...")
     preds, rms = {}, {}
     for role, group in (("fit", targets), ("holdout", holdout)):
         for t in group:

@@ -248,3 +248,53 @@ def test_outputs_figure_axes_carry_units(tmp_path, monkeypatch):
                                                                                        setter(self, s, *a, **k))[1])
     plot.plot_file(h5, tmp_path / "png")
     assert {"v_P (m/s)", "voltage (V)", "thickness_stretch (-)"} <= set(labels)
+
+
+def test_sweep_reports_progress_per_case(capsys):
+    rc = cli.main(["sweep", "--freq", "10,20", "--cycles", "2", "--steps-per-cycle", "10", "--mesh", "1x4x1"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "compiling the tube stepper (1x4x1 elements" in err
+    lines = [line.split() for line in err.splitlines() if line.strip().startswith("case ")]
+    assert [w[1] for w in lines] == ["1/2", "2/2"] and lines[-1][-1] == "0:00:00"
+    quiet = cli.main(["sweep", "--freq", "10,20", "--cycles", "2", "--steps-per-cycle", "10", "--mesh", "1x4x1",
+                      "--quiet"])
+    assert quiet == rc and "case 1/2" not in capsys.readouterr().err
+
+
+def test_verify_announces_each_check_group(capsys):
+    from dejax import verify
+
+    labels = [label for label, _ in verify.check_groups(quick=True)]
+    assert len(labels) == 5 and labels[0] == "element vs Project Chrono"
+    rows = verify.run_all(groups=verify.check_groups()[:1], progress=verify.stderr_progress)
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("[verify 1/1] element vs Project Chrono ...") and err[-1].startswith("[verify] 1 groups")
+    assert all(r.passed for r in rows)
+
+
+def test_readme_example_experiment_builds_for_fit_and_diagnose():
+    """The README's 'your own data' example: the files exist, load, and build a fit and a
+    diagnosis problem (the runs themselves compile for minutes; see the README)."""
+    from pathlib import Path
+
+    from fitting import diagnose as dg
+    from fitting.data import load_experiment
+    from fitting.experiment import from_experiment
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    assert "dejax fit data/examples/block_example.toml" in readme and "docs/experiment-format.md" in readme
+    exp = load_experiment(root / "data/examples/block_example.toml")
+    fwd, params0, free, bounds, targets, holdout, opts = from_experiment(exp)
+    assert free == ["mu_inf", "eta_1"] and [t.name for t in targets] == ["block_14kV_2Hz"]
+    assert [t.name for t in holdout] == ["block_12kV_4Hz"] and targets[0].unit == "1"
+    assert targets[0].data["times"].shape == (81,)  # [solver] dt = 0.0125 s over the 1 s trace
+    _, traces = dg.forward_from_experiment(exp)
+    assert [t.role for t in traces] == ["fit", "holdout"] and np.ptp(traces[0].y) > 0.01
+    doc = (root / "docs/experiment-format.md").read_text()
+    from fitting import data as fd
+
+    for key in (*fd.EXPERIMENT_KEYS, *fd.MATERIAL_SCALARS, *fd.UNIT_KEYS, *fd.FIT_KEYS, *fd.SOLVER_KEYS,
+                *fd.TRACE_KEYS, *fd.CHANNELS, *fd.LOADING_KINDS, *sum(fd.GEOMETRY_KEYS.values(), ())):
+        assert f"`{key}`" in doc, key
