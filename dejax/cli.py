@@ -19,7 +19,8 @@ class HelpFormatter(argparse.HelpFormatter):
     def _get_help_string(self, action):
         text = action.help or ""
         default = action.default
-        if (default in (None, False, "", argparse.SUPPRESS) or "default" in text.lower()
+        if (default is None or default is False or default is argparse.SUPPRESS or default == ""
+                or "default" in text.lower()
                 or not action.option_strings or isinstance(action, argparse._HelpAction)):
             return text
         shown = "x".join(str(v) for v in default) if isinstance(default, tuple) else default
@@ -109,11 +110,13 @@ def _rho_inf(text):
     return v
 
 
-def _common_solver_args(p):
-    p.add_argument("--dt", type=_positive("--dt"), default=None, help="time step (s)")
+def _common_solver_args(p, dt: float):
+    p.add_argument("--dt", type=_positive("--dt"), default=dt,
+                   help="time step (s); the run takes ceil(t_end / dt) equal steps, so the step used "
+                        "(stored as dt) may be slightly smaller")
     p.add_argument("--rho-inf", type=_rho_inf, default=0.8, help="generalized-alpha spectral radius (default 0.8)")
     p.add_argument("--damping", type=_nonneg("--damping"), default=0.0, help="structural damping c_d (1/s), C = c_d M")
-    p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5), help="Gauss points per direction")
+    p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5), help="Gauss points per direction (default: 3)")
     p.add_argument("--newton-tol", type=_positive("--newton-tol"), default=1e-6,
                    help="Newton tolerance: relative residual (default 1e-6), or the largest correction "
                         "(strain-like) with --newton-criterion correction")
@@ -150,9 +153,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--L", type=_positive("--L"), default=1e-3, help="cube side (m)")
     b.add_argument("--mesh", type=_mesh_shape, default=(1, 1, 1), help="elements, e.g. 2x2x2")
     b.add_argument("--hyperelastic", action="store_true", help="drop the viscous unit")
-    b.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None, help="override mu_inf (Pa)")
-    b.add_argument("--eta", type=_positive("--eta"), default=None, help="override eta_1 (Pa s)")
-    _common_solver_args(b)
+    b.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None,
+                   help="override mu_inf (Pa; default: the paper's 67e3)")
+    b.add_argument("--eta", type=_positive("--eta"), default=None,
+                   help="override eta_1 (Pa s; default: the paper's 3000)")
+    _common_solver_args(b, dt=1e-3)
 
     r = rsub.add_parser("rolled", help="rolled (tubular) DEA under the Eq. (42) sine voltage (paper Sec. 6)")
     r.add_argument("--model", default="IV", choices=("I", "II", "III", "IV", "hyperelastic"), help="Table 2 material")
@@ -164,11 +169,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--r", type=_positive("--r"), default=2e-3, help="inner radius (m)")
     r.add_argument("--L", type=_positive("--L"), default=8e-3, help="length (m)")
     r.add_argument("--point", default="P", choices=("P", "P_outer"), help="output point on the top face")
-    r.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None, help="override mu_inf (Pa)")
-    r.add_argument("--mu", default=None, help="override the viscous mu_s, comma-separated (Pa)")
-    r.add_argument("--eta", default=None, help="override the viscous eta_s, comma-separated (Pa s)")
+    r.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None,
+                   help="override mu_inf (Pa; default: the --model's)")
+    r.add_argument("--mu", default=None, help="override the viscous mu_s, comma-separated (Pa; default: the --model's)")
+    r.add_argument("--eta", default=None,
+                   help="override the viscous eta_s, comma-separated (Pa s; default: the --model's)")
     r.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
-    _common_solver_args(r)
+    _common_solver_args(r, dt=1e-4)
 
     t = rsub.add_parser("torsional", help="twisted torsional strip, phibar ramp (paper Sec. 5)")
     t.add_argument("--phibar-max", type=_nonneg("--phibar-max"), default=0.5, help="final dimensionless voltage")
@@ -177,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--viscous", action="store_true", help="add the paper's viscous unit")
     t.add_argument("--mesh", type=_mesh_shape, default=(48, 8, 2), help="length x width x thickness elements")
     t.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
-    _common_solver_args(t)
+    _common_solver_args(t, dt=1e-2)
 
     v = sub.add_parser("verify", help="run the verification cases against independent references")
     v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
@@ -365,7 +372,7 @@ def _cmd_run(args):
             damping=args.damping,
             volumetric=args.volumetric,
         )
-        return _run_problem(problem, args.t_end, args.dt or 1e-3, args, ["lateral_stretch"])
+        return _run_problem(problem, args.t_end, args.dt, args, ["lateral_stretch"])
     if args.scenario == "rolled":
         from . import scenarios
 
@@ -385,13 +392,13 @@ def _cmd_run(args):
                                    gauss_order=args.gauss or 3, damping=args.damping, point=args.point,
                                    volumetric=args.volumetric)
         problem.params["model"] = args.model
-        return _run_problem(problem, args.cycles / args.freq, args.dt or 1e-4, args, ["x_P"], args.solver)
+        return _run_problem(problem, args.cycles / args.freq, args.dt, args, ["x_P"], args.solver)
     if args.scenario == "torsional":
         from . import scenarios
 
         problem = scenarios.torsional(args.phibar_max, args.t_ramp, viscous=args.viscous, shape=args.mesh,
                                       gauss_order=args.gauss or 3, damping=args.damping, volumetric=args.volumetric)
-        return _run_problem(problem, args.t_end or args.t_ramp, args.dt or 1e-2, args, ["twist_angle"], args.solver)
+        return _run_problem(problem, args.t_end or args.t_ramp, args.dt, args, ["twist_angle"], args.solver)
     raise AssertionError(args.scenario)
 
 

@@ -315,7 +315,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--adam-steps", type=int, default=None, help="Adam iterations (default: max_iter / 2)")
     p.add_argument("--lbfgs-steps", type=int, default=None, help="L-BFGS iterations (default: the rest of max_iter)")
     p.add_argument("--steps", type=int, default=None, help="time steps per trace (default: from the data / [solver] dt)")
-    p.add_argument("--max-points", type=int, default=None, help="subsample each trace to at most this many points")
+    p.add_argument("--max-points", type=int, default=None, help="subsample each trace to at most this many points (default: all)")
     p.add_argument("--no-plots", action="store_true", help="write fit.json only")
     p.add_argument("--quiet", action="store_true", help="print only the final table")
     p.set_defaults(func=_handler)

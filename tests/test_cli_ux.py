@@ -194,13 +194,15 @@ def test_every_help_shows_defaults():
     for name, p in verbs.items():
         text = " ".join(p.format_help().split())
         for a in p._actions:
-            if a.option_strings and a.default not in (None, False, "") and a.dest != "help":
+            if a.option_strings and a.default is not None and a.default is not False and a.default != "" \
+                    and a.dest != "help":
                 help_text = " ".join((a.help or "").split())
                 assert "default" in help_text.lower() or "(default: " in text, (name, a.dest)
                 shown = " ".join(p._get_formatter()._get_help_string(a).split())
                 assert "default" in shown.lower(), (name, a.dest)
     block = " ".join(verbs["run block"].format_help().split())
     assert "peak voltage phi_m (V) (default: 12000.0)" in block and "(default: 1x1x1)" in block
+    assert "structural damping c_d (1/s), C = c_d M (default: 0.0)" in block and "(default: 0.001)" in block
 
 
 # ----------------------------------------------------------------------------- progress
