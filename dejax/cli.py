@@ -258,6 +258,17 @@ def _write_vtu_series(problem, states: dict, folder, stem: str) -> list:
     return [out / f for _, f in entries]
 
 
+def _h5_snapshot(problem, state, q0) -> dict:
+    """A results-file snapshot: t (s), q, q0 and the electrode voltages phi (V) at t, so that
+    ``outputs.vtu_from_h5`` can add the potential and the nominal field."""
+    import numpy as np
+
+    snap = {"t": float(state.t), "q": np.asarray(state.q), "q0": q0}
+    if problem.loading.voltages:
+        snap["phi"] = np.atleast_1d(np.asarray(problem.loading.phi(state.t), dtype=float))
+    return snap
+
+
 def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     import numpy as np
 
@@ -326,7 +337,7 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
             states[rows - 1] = sol.last_converged
     q0 = np.asarray(problem.model.q0)
     h5_states = states if not vtu else {k: states[k] for k in sorted(states)[-1:]}
-    snapshots = {k: {"t": float(st.t), "q": np.asarray(st.q), "q0": q0} for k, st in h5_states.items()}
+    snapshots = {k: _h5_snapshot(problem, st, q0) for k, st in h5_states.items()}
     write_h5(args.out, np.asarray(sol.time)[:rows], {k: np.asarray(v)[:rows] for k, v in sol.outputs.items()},
              problem.params, iters, snapshots=snapshots, attrs=attrs)
     if vtu:

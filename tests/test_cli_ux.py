@@ -112,6 +112,12 @@ def test_h5_units_actual_dt_version_command_line_and_vtu_series(tmp_path, capsys
     assert np.max(np.abs(last.point_data["nominal_field"][:, 2])) == pytest.approx(volt[-1] / 1e-3, rel=1e-6)
     first = meshio.read(vtu / files[0])
     assert np.max(np.abs(first.point_data["displacement"])) == 0.0
+    from dejax.outputs import vtu_from_h5  # the Python export of the file's snapshot has the field too
+
+    (again,) = vtu_from_h5(out, tmp_path / "again")
+    snap = meshio.read(again).point_data
+    assert np.max(snap["potential"]) == pytest.approx(volt[-1], rel=1e-9)
+    np.testing.assert_allclose(snap["displacement"], last.point_data["displacement"], atol=1e-15)
 
 
 def test_failed_run_keeps_its_trajectory_and_progress_stays_honest(tmp_path, capsys, monkeypatch):
