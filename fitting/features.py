@@ -378,6 +378,10 @@ def _projector(c: Cycles, n_harm: int, detrend: bool) -> np.ndarray:
     rows.extend(np.sin(k * omega * t))
     B = np.vstack(rows)
     G = (B * w) @ B.T
+    if np.count_nonzero(w) < B.shape[0] or np.linalg.matrix_rank(G) < B.shape[0]:
+        raise ValueError(f"features: {n_harm} harmonic(s){' and a drift' if detrend else ''} need at least "
+                         f"{B.shape[0]} samples over the whole cycles, spread over the period; got "
+                         f"{np.count_nonzero(w)}: sample more finely (e.g. more steps per cycle)")
     return np.linalg.solve(G, B * w)
 
 

@@ -306,3 +306,15 @@ def test_readme_example_experiment_builds_for_fit_and_diagnose():
     for key in (*fd.EXPERIMENT_KEYS, *fd.MATERIAL_SCALARS, *fd.UNIT_KEYS, *fd.FIT_KEYS, *fd.SOLVER_KEYS,
                 *fd.TRACE_KEYS, *fd.CHANNELS, *fd.LOADING_KINDS, *sum(fd.GEOMETRY_KEYS.values(), ())):
         assert f"`{key}`" in doc, key
+
+
+def test_too_coarse_cycles_give_a_clear_error():
+    """A sweep with 4 steps per cycle used to end in 'Singular matrix'."""
+    from dejax.outputs import cycle_table
+
+    t = np.linspace(0.0, 0.1, 5)
+    x = np.sin(2 * np.pi * 10 * t) ** 2
+    with pytest.raises(ValueError, match="need at least 8 samples over the whole cycles.*got 5"):
+        cycle_table(t, x, x, 10.0)
+    t = np.linspace(0.0, 0.1, 41)  # 40 samples per cycle: fine
+    assert cycle_table(t, np.sin(2 * np.pi * 10 * t) ** 2, None, 10.0)["x_max"].size == 1
