@@ -282,10 +282,10 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     dt_used = float(times[1] - times[0])
     _announce_long_run(problem, n)
     n_el = int(problem.model.dV.shape[0])
-    chunk = pg.chunk_steps(n, pg.SECONDS_PER_ELEMENT_STEP * n_el)
+    vtu = getattr(args, "vtu", None)
+    chunk = pg.chunk_steps(n, pg.SECONDS_PER_ELEMENT_STEP * n_el, frames=args.vtu_frames if vtu else None)
     bar = pg.ProgressBar(n, float(times[-1]), quiet=args.quiet)
     bar.compiling(f"the {problem.name} stepper ({n_el} element{'s' if n_el != 1 else ''}, {chunk}-step chunks)")
-    vtu = getattr(args, "vtu", None)
     snapshot_times = _frame_times(times, args.vtu_frames) if vtu else (float(times[-1]),)
     sol, snaps, compile_s, run_s = it.run_chunked(
         problem.model,

@@ -30,12 +30,14 @@ def projected_seconds(n_elements: int, n_steps: int) -> float:
 
 
 def chunk_steps(n_steps: int, seconds_per_step: float, target_s: float = 1.0, max_fraction: float = 0.01,
-                cap: int = 100) -> int:
+                cap: int = 100, frames: int | None = None) -> int:
     """Steps per jitted chunk: about ``target_s`` seconds of work, at most ``max_fraction`` of
-    the run (the steps computed in vain after a failure) and ``cap``; at least 1."""
+    the run (the steps computed in vain after a failure), ``cap``, and with ``frames``
+    snapshots (taken at chunk ends) at most their spacing; at least 1."""
     by_time = int(target_s / seconds_per_step) if seconds_per_step > 0 else cap
     by_fraction = math.ceil(n_steps * max_fraction)
-    return max(1, min(int(n_steps), by_time, by_fraction, cap))
+    by_frames = n_steps // frames if frames else n_steps
+    return max(1, min(int(n_steps), by_time, by_fraction, cap, by_frames))
 
 
 def format_duration(seconds: float) -> str:

@@ -238,6 +238,7 @@ def test_chunks_are_small_and_projection_scales():
     assert pg.chunk_steps(3000, 4e-4) == 30  # 1 % of the run
     assert pg.chunk_steps(3334, 1.92) == 1  # paper tube: one step per update
     assert pg.chunk_steps(5, 1e-4) == 1
+    assert pg.chunk_steps(3000, 4e-4, frames=500) == 6  # VTU frames are taken at chunk ends
     assert pg.projected_seconds(960, 3334) > 3600 > pg.projected_seconds(1, 3000)
 
 
