@@ -423,7 +423,13 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
     sigma = estimate_noise(traces) if noise is None else float(noise)
     n = int(sum(len(tr.t) for tr in fit))
 
+    if verbose:
+        print(f"[diagnose] baseline: simulating {len(traces)} trace(s) (the first call compiles the simulation) ...",
+              flush=True)
     base_pred = {tr.name: fwd.predict({}, tr) for tr in traces}
+    if verbose:
+        print(f"[diagnose] baseline done in {_time.time() - t0:.1f} s; fitting {len(candidates)} candidate effect(s)",
+              flush=True)
     r0 = np.concatenate([base_pred[tr.name] - tr.y for tr in fit])
     sse0 = float(r0 @ r0)
     aic0, bic0 = _ic(sse0, n, 0)
@@ -446,8 +452,9 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
         c.significant = c.d_bic < -bic_threshold
         results.append(c)
         if verbose:
-            print(f"  {name:<20} dBIC={c.d_bic:9.1f} rms_fit={c.rms_fit:.3e} rms_hold={rh} ({c.seconds:.1f} s)",
-                  flush=True)
+            rh_text = "-" if rh is None else f"{rh:.3e}"
+            print(f"  [{len(results)}/{len(candidates)}] {name:<20} dBIC={c.d_bic:9.1f} rms_fit={c.rms_fit:.3e} "
+                  f"rms_hold={rh_text} ({c.seconds:.1f} s)", flush=True)
 
     def key(c):
         return (not c.significant, c.rms_holdout if c.rms_holdout is not None else c.rms_fit, c.bic)
@@ -643,8 +650,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="report", help="output directory (report.md, report.json, PNGs)")
     p.add_argument("--effects", default=None, help="comma-separated candidate effects (default: the experiment's "
                    "[effects] tables, else the whole library)")
-    p.add_argument("--noise", type=float, default=None, help="noise sigma in output units (default: estimated)")
+    p.add_argument("--noise", type=float, default=None,
+                   help="noise sigma in output units (default: estimated from the traces)")
     p.add_argument("--max-iter", type=int, default=8, help="Levenberg-Marquardt iterations per candidate")
+    p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
     p.set_defaults(func=handler)
 
 
@@ -661,7 +670,8 @@ def handler(args) -> int:
         for c in cands or []:
             fx.get(c)
         start = fx.from_experiment(exp) if exp.effects else None
-        diag = diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start, verbose=True)
+        diag = diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
+                        verbose=not getattr(args, "quiet", False))
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
         print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2

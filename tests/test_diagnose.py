@@ -123,3 +123,14 @@ def test_block_simulation_identifies_voltage_lag():
     assert d.best == "voltage_lag", d.table()
     assert abs(d.ranking[0]["values"]["voltage_lag"]["tau"] - 0.02) < 2e-3
     assert d.shrinkage["holdout"]["gap_shrinkage"] > 0.7
+
+
+def test_diagnose_reports_progress_per_candidate(capsys):
+    tr = _traces({"voltage_lag": {"tau": 0.02}})
+    dg.diagnose(AnalyticForward(), tr, ["voltage_lag", "sensor_offset"], noise=SIGMA, verbose=True)
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("[diagnose] baseline: simulating 3 trace(s)")
+    assert out[1].startswith("[diagnose] baseline done in") and "2 candidate effect(s)" in out[1]
+    assert out[2].split()[:2] == ["[1/2]", "voltage_lag"] and out[3].split()[:2] == ["[2/2]", "sensor_offset"]
+    dg.diagnose(AnalyticForward(), tr, ["voltage_lag"], noise=SIGMA, verbose=False)
+    assert capsys.readouterr().out == ""
