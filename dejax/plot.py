@@ -43,6 +43,15 @@ def axis_label(name: str, unit: str | None = None) -> str:
     return f"{name} ({'-' if unit == '1' else unit})"
 
 
+def failure_note(attrs) -> str:
+    """"run failed at t = ... s (cause); data up to t = ... s" for a failed run's file, else ""."""
+    if attrs.get("status") != "failed":
+        return ""
+    cause = attrs.get("fail_status", "failure")
+    return (f"run failed at t = {float(attrs.get('fail_time', float('nan'))):.4g} s ({cause}); "
+            f"data up to t = {float(attrs.get('t_last_converged', float('nan'))):.4g} s")
+
+
 def plot_x(t, x, table=None, ax=None, label=None):
     plt = _plt()
     if ax is None:
@@ -168,6 +177,9 @@ def plot_file(path, out_dir=None) -> list[Path]:
             ax.set_ylabel(axis_label(k, res.get("units", {}).get(k)))
             ax.grid(alpha=0.3)
         axs[-1, 0].set_xlabel("t (s)")
+        note = failure_note(attrs)
+        if note:
+            fig.suptitle(note, fontsize=9, color="firebrick")
         save(fig, "outputs")
     if res["snapshots"]:
         try:

@@ -319,3 +319,22 @@ def test_too_coarse_cycles_give_a_clear_error():
         cycle_table(t, x, x, 10.0)
     t = np.linspace(0.0, 0.1, 41)  # 40 samples per cycle: fine
     assert cycle_table(t, np.sin(2 * np.pi * 10 * t) ** 2, None, 10.0)["x_max"].size == 1
+
+
+def test_plot_of_a_failed_run_says_so(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    from dejax import plot
+
+    t = np.linspace(0.0, 0.24, 25)
+    h5 = write_h5(tmp_path / "f.h5", t, {"lateral_stretch": 1 + t, "voltage": 1e5 * t},
+                  attrs=dict(status="failed", fail_time=0.25, fail_status="instability", t_last_converged=0.24))
+    titles = []
+    sup = matplotlib.figure.Figure.suptitle
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle",
+                        lambda self, s, *a, **k: (titles.append(s), sup(self, s, *a, **k))[1])
+    plot.plot_file(h5, tmp_path / "png")
+    assert titles == ["run failed at t = 0.25 s (instability); data up to t = 0.24 s"]
+    ok = write_h5(tmp_path / "ok.h5", t, {"voltage": t}, attrs=dict(status="ok"))
+    plot.plot_file(ok, tmp_path / "png")
+    assert len(titles) == 1
