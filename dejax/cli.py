@@ -1,7 +1,10 @@
-"""Command line: ``dejax run``, ``dejax verify`` (and more verbs as they land).
+"""Command line: ``dejax run``, ``dejax verify`` and the verbs the other modules register
+(bench, fit, diagnose, sensitivity, plot, sweep).
 
-Exit codes: 0 success, 1 simulation failure (reported with its time), 2 bad
-arguments or an unwritable output path (nothing is written).
+Exit codes: 0 success, 1 simulation failure (reported with its time; ``run`` still writes
+the trajectory up to the last converged step, status = "failed"), 2 bad arguments or an
+unwritable output path (every output path of a verb, ``OUTPUT_PATHS``, is checked before
+any computation; nothing is written).
 """
 from __future__ import annotations
 

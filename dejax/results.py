@@ -5,9 +5,14 @@ Layout of a results file:
     /time                    (n+1,) s
     /outputs/<name>          (n+1, ...) recorded outputs (SI units)
     /newton_iterations       (n,) Newton iterations per step
-    /snapshots/<k>/q, Cv     optional full states at chosen steps (attrs: t)
-    attributes (root)        scenario parameters, status, dejax version, timings, and
-                             ``units``: JSON {attribute: unit} of the numeric ones
+    /snapshots/<k>/q, q0, phi  optional full states at chosen steps (attrs: t), phi the
+                             electrode voltages (V) at t
+    attributes (root)        scenario parameters, dejax_version, command_line, dt (the step
+                             used) and dt_requested (s), timings, status ("ok" | "failed"; a
+                             failed run also has fail_time (s), fail_step, fail_status,
+                             fail_reason, t_last_converged (s): its datasets stop at the last
+                             converged step), and ``units``: JSON {attribute: unit} of the
+                             numeric ones
 
 Every dataset carries an attribute ``units`` ("1" = dimensionless; UNITS below). Files
 are created with mode 0o666 & ~umask, as ``open`` would make them.
