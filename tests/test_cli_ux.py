@@ -338,3 +338,21 @@ def test_plot_of_a_failed_run_says_so(tmp_path, monkeypatch):
     ok = write_h5(tmp_path / "ok.h5", t, {"voltage": t}, attrs=dict(status="ok"))
     plot.plot_file(ok, tmp_path / "png")
     assert len(titles) == 1
+
+
+def test_every_scenario_output_and_parameter_has_a_unit():
+    """The results-file units table covers what the scenarios record (their output
+    functions, traced abstractly: no compilation) and store."""
+    import jax
+
+    from dejax import integrate as it
+    from dejax import scenarios
+    from dejax.results import _attr_units, unit_of
+
+    problems = [scenarios.block(), scenarios.rolled("IV", shape=(1, 4, 1)), scenarios.torsional(shape=(4, 2, 2)),
+                scenarios.uniaxial(lambda t: 1.0 + t, scenarios.block_material())]
+    for prob in problems:
+        units = _attr_units(prob.params)
+        assert "unknown" not in units.values(), (prob.name, units)
+        names = jax.eval_shape(lambda p=prob: p.output_fn(p.model, p.loading, it.initial_state(p.model, p.loading)))
+        assert len(names) >= 3 and all(unit_of(k) != "unknown" for k in names), (prob.name, list(names))
