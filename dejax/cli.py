@@ -53,17 +53,23 @@ def _positive(name):
     return conv
 
 
-def _positive_int(name):
+def int_at_least(name, lowest: int):
+    """argparse type: a whole number >= ``lowest``; the error names the option."""
+
     def conv(text):
         try:
             v = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be a whole number, got {text!r}") from None
-        if v < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be >= 1, got {text}")
+        if v < lowest:
+            raise argparse.ArgumentTypeError(f"{name} must be >= {lowest}, got {text}")
         return v
 
     return conv
+
+
+def _positive_int(name):
+    return int_at_least(name, 1)
 
 
 def _nonneg(name):

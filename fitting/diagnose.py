@@ -650,9 +650,12 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="report", help="output directory (report.md, report.json, PNGs)")
     p.add_argument("--effects", default=None, help="comma-separated candidate effects (default: the experiment's "
                    "[effects] tables, else the whole library)")
-    p.add_argument("--noise", type=float, default=None,
+    from dejax.cli import _positive, int_at_least
+
+    p.add_argument("--noise", type=_positive("--noise"), default=None,
                    help="noise sigma in output units (default: estimated from the traces)")
-    p.add_argument("--max-iter", type=int, default=8, help="Levenberg-Marquardt iterations per candidate")
+    p.add_argument("--max-iter", type=int_at_least("--max-iter", 1), default=8,
+                   help="Levenberg-Marquardt iterations per candidate")
     p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
     p.set_defaults(func=handler)
 

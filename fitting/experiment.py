@@ -312,10 +312,16 @@ def register(subparsers) -> argparse.ArgumentParser:
                                           "traces; report held-out errors; write fit.json and PNGs to --out.")
     p.add_argument("experiment", help="experiment TOML file")
     p.add_argument("--out", default=None, help="output folder (fit.json, PNG plots)")
-    p.add_argument("--adam-steps", type=int, default=None, help="Adam iterations (default: max_iter / 2)")
-    p.add_argument("--lbfgs-steps", type=int, default=None, help="L-BFGS iterations (default: the rest of max_iter)")
-    p.add_argument("--steps", type=int, default=None, help="time steps per trace (default: from the data / [solver] dt)")
-    p.add_argument("--max-points", type=int, default=None, help="subsample each trace to at most this many points (default: all)")
+    from dejax.cli import int_at_least
+
+    p.add_argument("--adam-steps", type=int_at_least("--adam-steps", 0), default=None,
+                   help="Adam iterations (default: max_iter / 2)")
+    p.add_argument("--lbfgs-steps", type=int_at_least("--lbfgs-steps", 0), default=None,
+                   help="L-BFGS iterations (default: the rest of max_iter)")
+    p.add_argument("--steps", type=int_at_least("--steps", 1), default=None,
+                   help="time steps per trace (default: from the data / [solver] dt)")
+    p.add_argument("--max-points", type=int_at_least("--max-points", 2), default=None,
+                   help="subsample each trace to at most this many points (default: all)")
     p.add_argument("--no-plots", action="store_true", help="write fit.json only")
     p.add_argument("--quiet", action="store_true", help="print only the final table")
     p.set_defaults(func=_handler)

@@ -237,10 +237,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--params", default="h,L,r,mu_inf,mu_1,eta_1", help="comma-separated parameter names")
     p.add_argument("--model", default="I", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
     p.add_argument("--mesh", default="1x4x1", help="axial x circumferential x radial elements")
-    p.add_argument("--freq", type=float, default=100.0, help="sine frequency (Hz)")
-    p.add_argument("--phi-max", type=float, default=25e3, help="peak voltage (V)")
-    p.add_argument("--t-end", type=float, default=0.03, help="end time (s)")
-    p.add_argument("--dt", type=float, default=5e-4, help="time step (s)")
+    from dejax.cli import _nonneg, _positive
+
+    p.add_argument("--freq", type=_positive("--freq"), default=100.0, help="sine frequency (Hz)")
+    p.add_argument("--phi-max", type=_nonneg("--phi-max"), default=25e3, help="peak voltage (V)")
+    p.add_argument("--t-end", type=_positive("--t-end"), default=0.03, help="end time (s)")
+    p.add_argument("--dt", type=_positive("--dt"), default=5e-4, help="time step (s)")
     p.add_argument("--out", default=None, help="folder for sensitivity.json")
     p.set_defaults(func=_handler)
     return p

@@ -166,6 +166,11 @@ def test_long_run_announces_its_projected_wall_time(tmp_path, capsys, monkeypatc
         (["sweep", "--freq", "10", "--mesh", "abc"], "mesh must look like 12x20x4"),
         (["sweep", "--freq", "10", "--cycles", "0"], "--cycles must be >= 1"),
         (["run", "block", "--out", "x.h5", "--vtu-frames", "0"], "--vtu-frames must be >= 1"),
+        (["fit", "x.toml", "--steps", "0"], "--steps must be >= 1"),
+        (["fit", "x.toml", "--adam-steps", "two"], "--adam-steps must be a whole number, got 'two'"),
+        (["diagnose", "x.toml", "--max-iter", "0"], "--max-iter must be >= 1"),
+        (["diagnose", "x.toml", "--noise", "-1"], "--noise must be > 0"),
+        (["sensitivity", "--dt", "0"], "--dt must be > 0"),
     ],
 )
 def test_bad_values_are_argparse_errors_exit_2(capsys, argv, message):
