@@ -361,3 +361,25 @@ def test_every_scenario_output_and_parameter_has_a_unit():
         assert "unknown" not in units.values(), (prob.name, units)
         names = jax.eval_shape(lambda p=prob: p.output_fn(p.model, p.loading, it.initial_state(p.model, p.loading)))
         assert len(names) >= 3 and all(unit_of(k) != "unknown" for k in names), (prob.name, list(names))
+
+
+def test_progress_redraws_in_place_on_a_terminal():
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    bar = pg.ProgressBar(4, 0.4, stream=term, interval=0.0)
+    for k in range(1, 5):
+        bar(k, 4, 0.1 * k, 0.1 * k)
+    bar.close()
+    text = term.getvalue()
+    assert text.count("\r") == 5 and text.count("\n") == 1 and text.endswith("\n")
+    assert "step 4/4" in text.split("\r")[-1] and "100%" in text.split("\r")[-1]
+    slow = Terminal()
+    bar = pg.ProgressBar(1000, 1.0, stream=slow, interval=60.0)  # throttled: only the first update drawn
+    for k in range(1, 1001):
+        bar(k, 1000, k / 1000, 1.0)
+    assert slow.getvalue().count("\r") == 1
