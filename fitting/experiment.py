@@ -255,7 +255,7 @@ def from_experiment(exp, n_steps: int | None = None, max_points: int | None = No
             data = dict(times=jnp.linspace(0.0, float(tr.time[-1]), N + 1), volt_t=jnp.asarray(tr.time),
                         volt_v=jnp.asarray(v), t_obs=jnp.asarray(tr.time[idx]))
             tg = Target(tr.name, y[idx], data, t=tr.time[idx], x=np.asarray(v)[idx], weight=tr.weight,
-                        ylabel=f"{channel} ({CHANNEL_UNITS[channel]})", xlabel="voltage (V)",
+                        ylabel=f"{channel} ({CHANNEL_UNITS[channel].replace('1', '-')})", xlabel="voltage (V)",
                         unit=CHANNEL_UNITS[channel])
             (targets if tr.role == "fit" else holdout).append(tg)
     else:
