@@ -174,8 +174,11 @@ def explain_nonfinite(forward, params: Mapping[str, float], target: Target) -> s
 
     sol = sim({k: jnp.asarray(v, dtype=float) for k, v in params.items()}, target.data)
     if int(sol.status) != 0:
-        err = SimulationError(Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1)
-        return f"trace {target.name!r}: {err}"
+        status = Status(int(sol.status))
+        err = SimulationError(status, sol.fail_time, int(sol.fail_step) + 1)
+        hint = ("; fits take their time steps without cut-back: try more steps (--steps, [solver] dt) or other "
+                "initial parameters" if status == Status.NEWTON_FAILED else "")
+        return f"trace {target.name!r}: {err}{hint}"
     return f"trace {target.name!r}: the simulation completed but its prediction is not finite (check the data)"
 
 
