@@ -436,7 +436,8 @@ def fit(
         if f < best[0]:
             best = (f, theta.copy())
         history.append((i + 1, "adam", f))
-        say(f"[fit] adam {i + 1:4d} loss {f:.6g}  " + _pstr(free, box.to_p(jnp.asarray(theta))))
+        say(f"[fit] adam {i + 1:4d}/{adam_steps} loss {f:.6g}  " + _pstr(free, box.to_p(jnp.asarray(theta)))
+            + f"  ({_time.perf_counter() - tic:.0f} s)")
     theta, f = best[1], best[0]
     f, g = value_and_grad(theta)
     # --- L-BFGS (optax direction + backtracking Armijo line search)
@@ -464,7 +465,8 @@ def fit(
         df = f - fc
         theta, f, g = cand, fc, gc
         history.append((i + 1, "lbfgs", f))
-        say(f"[fit] lbfgs {i + 1:4d} loss {f:.6g} step {alpha:g}  " + _pstr(free, box.to_p(jnp.asarray(theta))))
+        say(f"[fit] lbfgs {i + 1:4d}/{lbfgs_steps} loss {f:.6g} step {alpha:g}  "
+            + _pstr(free, box.to_p(jnp.asarray(theta))) + f"  ({_time.perf_counter() - tic:.0f} s)")
         if df <= tol * max(1.0, abs(f)) or np.max(np.abs(g)) < 1e-12:
             say("[fit] converged")
             break

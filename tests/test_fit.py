@@ -131,9 +131,13 @@ def _linear(params, data):
     return params["mu_inf"] * data["x"] + data["nan"]
 
 
-def test_fit_table_shows_units_of_parameters_and_rms():
-    res = F.fit(_linear, {"mu_inf": 1e4}, ["mu_inf"], {"mu_inf": (1e3, 1e5)}, _linear_targets(), adam_steps=0,
-                lbfgs_steps=3, covariance=False, verbose=False)
+def test_fit_table_shows_units_of_parameters_and_rms(capsys):
+    res = F.fit(_linear, {"mu_inf": 1e4}, ["mu_inf"], {"mu_inf": (1e3, 1e5)}, _linear_targets(), adam_steps=2,
+                lbfgs_steps=3, covariance=False, verbose=True)
+    log = capsys.readouterr().out.splitlines()
+    adam = [line for line in log if line.startswith("[fit] adam")]
+    assert [line.split()[2] for line in adam] == ["1/2", "2/2"] and all("mu_inf=" in line for line in adam)
+    assert all("loss" in line and line.endswith(" s)") for line in adam)
     lines = res.table().splitlines()
     assert lines[0].endswith("unit") and lines[1].split()[0] == "mu_inf" and lines[1].split()[-1] == "Pa"
     rms_rows = [line for line in lines if line.split()[:1] in (["slow"], ["fast"])]
