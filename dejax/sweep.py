@@ -266,11 +266,12 @@ def register(subparsers):
     from .cli import _mesh_shape, _positive_int, float_list
 
     p = subparsers.add_parser("sweep", help="rolled-DEA parameter sweep -> per-case cycle features")
+    base = cases_from_grid({})[0]
     for k, hlp in (("h", "wall thickness (m)"), ("r", "inner radius (m)"), ("L", "length (m)"),
                    ("freq", "frequency (Hz)"), ("phi_max", "peak voltage (V)")):
         flag = "--" + k.replace("_", "-")
         p.add_argument(flag, dest=k, type=float_list(flag), default=None,
-                       help=f"comma-separated {hlp}; unswept: h = r = 2e-3, L = 8e-3, freq = 30, phi-max = 50e3")
+                       help=f"comma-separated {hlp} (default when not swept: {base[k]:g})")
     p.add_argument("--model", default="IV", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
     p.add_argument("--mesh", type=_mesh_shape, default=(1, 4, 1), help="elements n_l x n_s x n_r")
     p.add_argument("--cycles", type=_positive_int("--cycles"), default=2, help="voltage cycles per case")
