@@ -294,7 +294,10 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     vtu = getattr(args, "vtu", None)
     chunk = pg.chunk_steps(n, pg.SECONDS_PER_ELEMENT_STEP * n_el, frames=args.vtu_frames if vtu else None)
     bar = pg.ProgressBar(n, float(times[-1]), quiet=args.quiet)
-    bar.compiling(f"the {problem.name} stepper ({n_el} element{'s' if n_el != 1 else ''}, {chunk}-step chunks)")
+    import jax
+
+    bar.compiling(f"the {problem.name} stepper ({n_el} element{'s' if n_el != 1 else ''}, {chunk}-step chunks)",
+                  cached=bool(jax.config.jax_compilation_cache_dir))
     snapshot_times = _frame_times(times, args.vtu_frames) if vtu else (float(times[-1]),)
     sol, snaps, compile_s, run_s = it.run_chunked(
         problem.model,

@@ -84,10 +84,12 @@ class ProgressBar:
             self.stream.write(text + end)
             self.stream.flush()
 
-    def compiling(self, what: str = "the time stepper") -> None:
-        """Announce the compile phase (the first call of a size can take tens of seconds)."""
+    def compiling(self, what: str = "the time stepper", cached: bool = False) -> None:
+        """Announce the compile phase (the first call of a size can take tens of seconds);
+        ``cached``: JAX's persistent compilation cache is on."""
         self._compile_start = time.perf_counter()
-        self._write(f"compiling {what} (cached for later runs of the same size) ...", "\n")
+        note = " (an identical earlier run's program is loaded from the compile cache)" if cached else ""
+        self._write(f"compiling {what}{note} ...", "\n")
 
     def __call__(self, k: int, n: int, t: float, wall: float) -> None:
         if self._compile_start is not None:

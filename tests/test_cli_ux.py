@@ -227,6 +227,9 @@ def test_progress_line_and_honest_failure():
     buf = io.StringIO()
     bar = pg.ProgressBar(100, 1.0, stream=buf, interval=0.0)
     bar.compiling("x")
+    assert buf.getvalue() == "compiling x ...\n"
+    bar.compiling("x", cached=True)
+    assert "loaded from the compile cache" in buf.getvalue().splitlines()[-1]
     bar(100, 100, 1.0, 1.0)  # the chunk end a failure hides
     bar.close(failed=True, k=42, t=0.42)
     last = buf.getvalue().rstrip("\n").splitlines()[-1]
