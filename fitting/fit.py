@@ -269,7 +269,7 @@ class FitResult:
             stderr=self.stderr, rel_stderr=self.rel_stderr, correlation=np.asarray(self.corr).tolist(),
             cov_log=np.asarray(self.cov_log).tolist(), loss=self.loss, loss0=self.loss0,
             history=[list(h) for h in self.history], rms=self.rms, n_evals=self.n_evals, seconds=self.seconds,
-            at_bound=self.at_bound,
+            at_bound=self.at_bound, units={k: param_unit(k) for k in self.params},
         )
 
     def save(self, out_dir, plots: bool = True) -> list[Path]:

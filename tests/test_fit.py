@@ -142,7 +142,7 @@ def test_fit_table_shows_units_of_parameters_and_rms(capsys):
     assert lines[0].endswith("unit") and lines[1].split()[0] == "mu_inf" and lines[1].split()[-1] == "Pa"
     rms_rows = [line for line in lines if line.split()[:1] in (["slow"], ["fast"])]
     assert len(rms_rows) == 2 and all(r.split()[-1] == "Pa" for r in rms_rows)
-    assert res.rms["slow"]["unit"] == "Pa"
+    assert res.rms["slow"]["unit"] == "Pa" and res.to_dict()["units"] == {"mu_inf": "Pa"}
     assert F.param_unit("eta_2") == "Pa s" and F.param_unit("c_d") == "1/s" and F.param_unit("Jm_1") == "1"
 
 
