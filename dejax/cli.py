@@ -125,7 +125,8 @@ def _common_solver_args(p, dt: float):
                         "(stored as dt) may be slightly smaller")
     p.add_argument("--rho-inf", type=_rho_inf, default=0.8, help="generalized-alpha spectral radius (default 0.8)")
     p.add_argument("--damping", type=_nonneg("--damping"), default=0.0, help="structural damping c_d (1/s), C = c_d M")
-    p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5), help="Gauss points per direction (default: 3)")
+    p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5),
+                   help="Gauss points per direction (default: 3)")
     p.add_argument("--newton-tol", type=_positive("--newton-tol"), default=1e-6,
                    help="Newton tolerance: relative residual (default 1e-6), or the largest correction "
                         "(strain-like) with --newton-criterion correction")
@@ -142,7 +143,8 @@ def _common_solver_args(p, dt: float):
     p.add_argument("--vtu", default=None, metavar="DIR",
                    help="also write a ParaView time series into DIR: <out stem>.pvd + one VTU per frame "
                         "(displacement m, potential V, nominal_field V/m, strain_norm)")
-    p.add_argument("--vtu-frames", type=_positive_int("--vtu-frames"), default=50, help="number of VTU frames (evenly spaced in time)")
+    p.add_argument("--vtu-frames", type=_positive_int("--vtu-frames"), default=50,
+                   help="number of VTU frames (evenly spaced in time)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
