@@ -4,7 +4,8 @@ The same file drives ``dejax run`` (simulate the experiment), ``dejax fit``
 (identify the free parameters from the ``fit`` traces) and ``dejax diagnose``
 (compare with the ``holdout`` traces and try candidate effects). Everything is
 SI (m, kg, s, Pa, V, F/m) once loaded; CSV columns may carry other units,
-declared per trace and converted on loading.
+declared per trace and converted on loading. A user's guide with every key, its unit,
+its default and the verb that reads it: ``docs/experiment-format.md``.
 
 Example
 -------
