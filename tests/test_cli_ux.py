@@ -386,3 +386,18 @@ def test_progress_redraws_in_place_on_a_terminal():
     for k in range(1, 1001):
         bar(k, 1000, k / 1000, 1.0)
     assert slow.getvalue().count("\r") == 1
+
+
+@pytest.mark.slow
+def test_readme_diagnose_command_names_the_lag(tmp_path, capsys):
+    """The README's step 2 on the shipped block example (about a minute: it compiles)."""
+    from pathlib import Path
+
+    toml = Path(__file__).resolve().parents[1] / "data/examples/block_example.toml"
+    rc = cli.main(["diagnose", str(toml), "--out", str(tmp_path / "report"), "--effects", "voltage_lag,sensor_offset"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "verdict: gap explained by 'voltage_lag'" in out
+    tau = float(out.split("voltage_lag.tau=")[1].split("+-")[0])
+    assert abs(tau - 0.02) < 2e-3  # the traces were made with tau = 20 ms
+    assert (tmp_path / "report" / "report.md").exists()
