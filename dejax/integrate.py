@@ -356,8 +356,10 @@ def _condensed_rhs(model: Model, ru, g, kup, kpp):
 
 def _make_newton(scheme, opts: NewtonOptions, solver):
     """Newton solve of one step: ``newton(model, ctx, z0, p0, fac, valid) -> (z, p,
-    iterations, factorizations, converged, fac)``; fac is the factorization in use at the
-    end (handed to the next step). Derivatives of z and p are implicit (custom_jvp)."""
+    iterations, factorizations, converged, fac, Cv)``; fac is the factorization in use at
+    the end (handed to the next step), Cv the viscous state at the solution (from its
+    residual evaluation, not recomputed). Derivatives of z, p and Cv are implicit
+    (custom_jvp)."""
 
     def factor(model, ctx, z, p):
         sys = _system(model, scheme, ctx, z, p)
@@ -380,10 +382,10 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
         def trial(z, p, dz, dp, a):
             zt, pt = z + a * dz, p + a * dp
             ok = _admissible(model, ctx, zt)
-            ru, g, _ = _residual(model, scheme, ctx, zt, pt)
+            ru, g, Cv = _residual(model, scheme, ctx, zt, pt)
             res = _residual_norm(model, ru, g)
             ok = ok & jnp.isfinite(res)
-            return zt, pt, ru, g, jnp.where(ok, res, jnp.inf), ok
+            return zt, pt, ru, g, Cv, jnp.where(ok, res, jnp.inf), ok
 
         def line_search(z, p, dz, dp, res, fresh):
             """Backtrack from a = 1: admissibility always; Armijo decrease for a fresh direction.
@@ -392,7 +394,7 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
 
             def cond(c):
                 a, k, out = c
-                zt, pt, ru, g, rt, ok = out
+                zt, pt, ru, g, Cv, rt, ok = out
                 bad = (~ok) | (opts.line_search & fresh & (rt > (1.0 - c1 * a) * res))
                 return bad & (k <= opts.max_backtracks)
 
@@ -401,12 +403,13 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
                 a = 0.5 * a
                 return a, k + 1, trial(z, p, dz, dp, a)
 
-            placeholder = (z, p, jnp.zeros_like(z), jnp.zeros_like(p), jnp.asarray(jnp.inf), jnp.asarray(False))
+            placeholder = (z, p, jnp.zeros_like(z), jnp.zeros_like(p), ctx.state.Cv, jnp.asarray(jnp.inf),
+                           jnp.asarray(False))
             a, _, out = jax.lax.while_loop(cond, body, (jnp.asarray(2.0), 0, placeholder))
             return a, out
 
         def body(c):
-            z, p, ru, g, res, res_prev, res0, it, nfac, fac, valid, conv, alive = c
+            z, p, ru, g, Cv, res, res_prev, res0, it, nfac, fac, valid, conv, alive = c
             # the first pass (it = -1) only evaluates the residual at the starting iterate,
             # through the same traced trial as the line search (one residual in the program)
             start = it < 0
@@ -415,12 +418,12 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             fac = jax.lax.cond(need, lambda: factor(model, ctx, z, p), lambda: fac)
             dz, dp = jax.lax.cond(start, lambda: (jnp.zeros_like(z), jnp.zeros_like(p)),
                                   lambda: direction(model, fac, ru, g))
-            a, (zt, pt, rut, gt, rest, ok) = line_search(z, p, dz, dp, res, need)
+            a, (zt, pt, rut, gt, Cvt, rest, ok) = line_search(z, p, dz, dp, res, need)
             # a stale factorization whose step does not reduce the residual is not applied:
             # the iterate is kept and the next iteration refactors
             accept = ok & (need | start | (rest < res))
             z, p = jnp.where(accept, zt, z), jnp.where(accept, pt, p)
-            ru, g = jnp.where(accept, rut, ru), jnp.where(accept, gt, g)
+            ru, g, Cv = jnp.where(accept, rut, ru), jnp.where(accept, gt, g), jnp.where(accept, Cvt, Cv)
             res_new = jnp.where(accept, rest, res)
             res0 = jnp.where(start, rest, res0)
             if opts.criterion == "residual":
@@ -430,7 +433,7 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             # a fresh direction that cannot be applied ends the iteration (failed step), and
             # so does a starting iterate that is inadmissible or non-finite
             alive = jnp.where(start, accept, accept | ~need)
-            return (z, p, ru, g, res_new, jnp.where(accept & ~start, res, res_prev), res0, it + 1,
+            return (z, p, ru, g, Cv, res_new, jnp.where(accept & ~start, res, res_prev), res0, it + 1,
                     nfac + need.astype(int), fac, jnp.where(start, valid, accept), conv, alive)
 
         def cond(c):
@@ -438,11 +441,11 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             return (~conv) & (it < opts.max_iter) & alive
 
         inf = jnp.asarray(jnp.inf)
-        c0 = (z0, p0, jnp.zeros_like(z0), jnp.zeros_like(p0), inf, inf, inf, jnp.asarray(-1), jnp.asarray(0), fac,
-              jnp.asarray(valid), jnp.asarray(False), jnp.asarray(True))
-        z, p, _, _, _, _, _, it, nfac, fac, _, conv, _ = jax.lax.while_loop(cond, body, c0)
+        c0 = (z0, p0, jnp.zeros_like(z0), jnp.zeros_like(p0), ctx.state.Cv, inf, inf, inf, jnp.asarray(-1),
+              jnp.asarray(0), fac, jnp.asarray(valid), jnp.asarray(False), jnp.asarray(True))
+        z, p, _, _, Cv, _, _, _, it, nfac, fac, _, conv, _ = jax.lax.while_loop(cond, body, c0)
         it = jnp.maximum(it, 0)
-        return z, p, it, nfac, conv, fac
+        return z, p, it, nfac, conv, fac, Cv
 
     @jax.custom_jvp
     def newton(model, ctx, z0, p0, fac, valid):
@@ -456,7 +459,9 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
         z, p = out[0], out[1]
         _, (dru, dg) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p)[:2], (model, ctx), (dmodel, dctx))
         dz, dp = _implicit_solve(model, solver, _system(model, scheme, ctx, z, p), dru, dg)
-        return out, (dz, dp, *(_zero_tangent(x) for x in out[2:]))
+        _, dCv = jax.jvp(lambda m, c, z_, p_: _residual(m, scheme, c, z_, p_)[2], (model, ctx, z, p),
+                         (dmodel, dctx, dz, dp))
+        return out, (dz, dp, *(_zero_tangent(x) for x in out[2:6]), dCv)
 
     return newton
 
@@ -534,11 +539,9 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
         )
         q_pred = scheme.predict(state, h, opts.predictor)
         p0 = mdl.initial_pressure(model) if state.p is None else state.p
-        z, p1, it, nfac, conv, fac = newton(model, ctx, q_pred[s.free], p0, fac, valid)
+        z, p1, it, nfac, conv, fac, Cv1 = newton(model, ctx, q_pred[s.free], p0, fac, valid)
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = scheme.kinematics(state, h, q1)
-        E = mdl.nominal_field(model, ctx.phi1)
-        _, Cv1 = mdl.internal_force(model, q1, E, state.Cv, h, p1)
         new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1, p=p1)
         F = mdl.deformation_gradients(model, q1)
         finite = jnp.all(jnp.isfinite(q1)) & jnp.all(jnp.isfinite(Cv1)) & jnp.all(jnp.isfinite(p1))
