@@ -1,0 +1,21 @@
+"""dejax.bench: the accuracy measure reported beside the timings (issue 10)."""
+import numpy as np
+
+from dejax import bench
+
+
+def test_deviation_is_the_largest_gap_over_the_reference_peak():
+    t_ref = np.linspace(0.0, 1.0, 1001)
+    x_ref = np.sin(2 * np.pi * t_ref)
+    # a coarser run with a known error: 1 % of the peak at t = 0.5, zero at the ends
+    t = np.linspace(0.0, 1.0, 101)
+    x = np.sin(2 * np.pi * t) + 0.01 * np.sin(np.pi * t) ** 8
+    dev = bench.deviation(t, x, t_ref, x_ref)
+    # linear interpolation of the coarse sine adds at most (2 pi dt)^2 / 8 = 4.9e-4 of the peak
+    assert 0.01 - 5e-4 <= dev <= 0.01 + 5e-4
+    assert bench.deviation(t_ref, x_ref, t_ref, x_ref) == 0.0
+
+
+def test_reference_cache_lives_under_the_dejax_cache_dir(tmp_path, monkeypatch):
+    monkeypatch.setenv("DEJAX_CACHE_DIR", str(tmp_path))
+    assert bench._reference_path("tube-4x8x1") == tmp_path / "bench" / "tube-4x8x1.npz"
