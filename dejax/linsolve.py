@@ -12,6 +12,7 @@ A solver provides
 """
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
 import warnings
@@ -121,6 +122,8 @@ class _FactorCache:
 
 
 _CACHE = _FactorCache()
+_HOST_THREAD = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="dejax-sparse")
+"""Every host factorization, solve and eviction runs here (see ``SparseSolver._host_solve``)."""
 
 
 def _csc(pattern: _Pattern, values: np.ndarray):
@@ -201,9 +204,15 @@ class SparseSolver:
         return jnp.zeros(_pattern(model.structure).nnz)
 
     def _host_solve(self, pattern, values, rhs):
+        # on one dedicated thread: XLA runs host callbacks on varying threads, and a SuperLU
+        # factorization freed on another thread than the one that made it was never released
+        # (+1 factorization of memory per factorization: 22 GB on the 48x8x2 strip;
+        # bench/leak_superlu_callback.py)
+        values, rhs = np.array(values), np.array(rhs)
+        return _HOST_THREAD.submit(self._host_solve_here, pattern, values, rhs).result()
+
+    def _host_solve_here(self, pattern, values, rhs):
         backend = _available_backend(self.backend)
-        values = np.asarray(values)
-        rhs = np.asarray(rhs)
         f = _CACHE.get(pattern, values, backend)
         if rhs.ndim == 1:
             return f(rhs).astype(rhs.dtype)
