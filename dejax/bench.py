@@ -25,7 +25,6 @@ solution does not depend on the Newton variant) and report ``deviation``, the la
 from __future__ import annotations
 
 import json
-import os
 import resource
 import sys
 import time
@@ -48,8 +47,9 @@ REFERENCE_TOL = 1e-10
 
 
 def _reference_path(key: str) -> Path:
-    root = Path(os.environ.get("DEJAX_CACHE_DIR", Path.home() / ".cache" / "dejax")) / "bench"
-    return root / f"{key}.npz"
+    from .compile_cache import cache_root
+
+    return cache_root() / "bench" / f"{key}.npz"
 
 
 def reference_trace(key, problem, t_end, output="x_P"):

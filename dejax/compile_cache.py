@@ -15,11 +15,18 @@ from pathlib import Path
 import jax
 
 
-def default_dir() -> Path:
+def cache_root() -> Path:
+    """dejax's cache folder: ``$DEJAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/dejax`` (``~/.cache/dejax``)."""
     if os.environ.get("DEJAX_CACHE_DIR"):
         return Path(os.environ["DEJAX_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "dejax" / "jax"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dejax"
+
+
+def default_dir() -> Path:
+    """The compilation cache: ``$DEJAX_CACHE_DIR`` itself, else ``cache_root() / "jax"``."""
+    if os.environ.get("DEJAX_CACHE_DIR"):
+        return cache_root()
+    return cache_root() / "jax"
 
 
 def disabled_by_env() -> bool:
