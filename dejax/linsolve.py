@@ -208,8 +208,7 @@ class SparseSolver:
         # factorization freed on another thread than the one that made it was never released
         # (+1 factorization of memory per factorization: 22 GB on the 48x8x2 strip;
         # bench/leak_superlu_callback.py)
-        values, rhs = np.array(values), np.array(rhs)
-        return _HOST_THREAD.submit(self._host_solve_here, pattern, values, rhs).result()
+        return _HOST_THREAD.submit(self._host_solve_here, pattern, np.asarray(values), np.asarray(rhs)).result()
 
     def _host_solve_here(self, pattern, values, rhs):
         backend = _available_backend(self.backend)
