@@ -1,12 +1,12 @@
 r"""Independent reduced (homogeneous, incompressible) reference models.
 
 These models verify the 3-D finite-element simulator. They are derived here by
-hand from the free energy of NOTES.md and do **not** use ``dejax.material``:
+hand from the free energy of docs/paper-notes.md and do **not** use ``dejax.material``:
 every stress and rate below is written out explicitly, so a mistake in the
 simulator's energy, autodiff or flow-rule update cannot cancel against the same
 mistake here. SI units throughout: m, s, Pa, Pa s, V, F/m.
 
-Free energy per reference volume (NOTES.md, Eqs. 18-20), with exact
+Free energy per reference volume (docs/paper-notes.md, Eqs. 18-20), with exact
 incompressibility (J = 1, so the K terms drop and Je = 1 because det Cv = 1)::
 
     psi = -mu_inf Jm_inf/2 ln H_inf - sum_s mu_s Jm_s/2 ln H_s - eps/2 E.C^-1 E
@@ -15,7 +15,7 @@ incompressibility (J = 1, so the K terms drop and Je = 1 because det Cv = 1)::
 
 so d psi / d I1 = mu_inf/(2 H_inf) and d psi / d I1e_s = mu_s/(2 H_s).
 
-Viscous flow rule (NOTES.md, Eq. 37 cleaned up), with Je = 1::
+Viscous flow rule (docs/paper-notes.md, Eq. 37 cleaned up), with Je = 1::
 
     dCv_s/dt = (2 mu_s/eta_s)/H_s (C - tr(C Cv_s^-1) Cv_s/3)
 
@@ -28,18 +28,18 @@ stress is 2 mu_s dev(e - e_v). The unit therefore relaxes with
 
     tau_s = eta_s / (2 mu_s)
 
-i.e. half of the "tau = eta/mu" quoted in NOTES.md (that value belongs to a
+i.e. half of a "tau = eta/mu" read off the paper (that value belongs to a
 Maxwell dashpot sigma = 2 eta de_v/dt; this flow rule is sigma = eta de_v/dt).
 For the paper's block (mu_1 = 67 kPa, eta_1 = 3000 Pa s) tau_1 = 22.4 ms, not
 45 ms. ``relaxation_time(mu, eta)`` returns this value. Under a *held voltage* the
 block creeps more slowly: linearising the block equations below,
 6 mu_inf e + 6 mu_1 (e - v) = eps E^2 and dv/dt = (2 mu_1/eta_1)(e - v), so
 tau_creep = eta_1 (mu_inf + mu_1)/(2 mu_1 mu_inf) = 44.8 ms, which coincides with
-NOTES.md's "eta_1/mu_1 = 45 ms" only because mu_inf = mu_1 there. Either way the
+"eta_1/mu_1 = 45 ms" only because mu_inf = mu_1 there. Either way the
 viscous delay is short against the 1 s ramp, and by t = 3 s the unit is fully
-relaxed: NOTES.md's lam(3 s) values are the mu_inf-only Gent equilibrium.
+relaxed: the paper notes' lam(3 s) values are the mu_inf-only Gent equilibrium.
 
-**Verdict on NOTES.md's block equations** ("Homogeneous block reference"): they
+**Verdict on the paper notes' block equations** ("Homogeneous block"): they
 are correct. Derivation: F = diag(lam, lam, lam^-2), Cv = diag(xi^2, xi^2,
 xi^-4), E = phi/L along z, so I1 = 2 lam^2 + lam^-4, I1e = 2 lam^2 xi^-2 +
 lam^-4 xi^4, E.C^-1 E = lam^4 E^2. The traction-free block at fixed voltage is
@@ -48,12 +48,12 @@ stationary in lam::
     d psi/d lam = 2 mu_inf (lam - lam^-5)/H_inf
                 + sum_s 2 mu_s (lam xi_s^-2 - lam^-5 xi_s^4)/H_s - 2 eps E^2 lam^3 = 0
 
-and dividing by 2 lam^3 gives NOTES.md's equilibrium (for one unit, after
+and dividing by 2 lam^3 gives the paper notes' equilibrium (for one unit, after
 dividing by mu_inf). The xx-component of the flow rule,
 2 xi dxi/dt = A (lam^2 - I1e xi^2/3) = A (lam^2 - lam^-4 xi^6)/3, gives
-dxi/dt = mu_s/(3 eta_s H_s) (lam^2 xi^-1 - lam^-4 xi^5), NOTES.md's evolution
+dxi/dt = mu_s/(3 eta_s H_s) (lam^2 xi^-1 - lam^-4 xi^5), the paper notes' evolution
 (the zz-component gives the same equation). The printed Eq. (63) of the paper
-is wrong as NOTES.md says (rate of xi, not lambda_x; limit Jm_1).
+is wrong, as the paper notes say (rate of xi, not lambda_x; limit Jm_1).
 
 All public functions accept numpy (or python) inputs and return numpy arrays.
 Time-dependent loadings ``phi_fn`` / ``lam_fn`` are evaluated inside the
@@ -205,7 +205,7 @@ def gent_equibiaxial_stretch(phi, L, mu_inf, Jm_inf, eps):
 
 
 def relaxation_time(mu, eta):
-    """Small-strain relaxation time of one viscous unit under the NOTES.md flow rule: eta/(2 mu) (s)."""
+    """Small-strain relaxation time of one viscous unit under the docs/paper-notes.md flow rule: eta/(2 mu) (s)."""
     return np.asarray(eta, dtype=float) / (2.0 * np.asarray(mu, dtype=float))
 
 
@@ -452,7 +452,7 @@ def homogeneous_block_response(
         H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
         H_s   = 1 - (2 lam^2 xi_s^-2 + lam^-4 xi_s^4 - 3)/Jm_s
 
-    with xi_s(t0) = 1 (Cv = I at rest). For one unit this is exactly NOTES.md's system.
+    with xi_s(t0) = 1 (Cv = I at rest). For one unit this is exactly the paper notes' system.
 
     Method (index-1 DAE): an ODE in the viscous stretches xi only; at every right-hand-side
     evaluation the algebraic equilibrium is solved for lam by a scalar Newton iteration

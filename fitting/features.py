@@ -1,6 +1,6 @@
 """Cycle measures of periodic (or periodically driven) responses, in jax.numpy.
 
-The paper's cycle measures (NOTES.md, Section 6) and a few more, written as
+The paper's cycle measures (docs/paper-notes.md, Section 6) and a few more, written as
 pure functions so that a fit can differentiate through them:
 
 ==================  ===========================  ===========================

@@ -1,14 +1,14 @@
 """Tests of the hyper-viscoelastic Gent dielectric elastomer (dejax/material.py).
 
 References are independent of the code under test: closed forms derived by hand
-from the free energy in shared/reference/NOTES.md (written out again below in
+from the free energy in docs/paper-notes.md (written out again below in
 numpy), central finite differences, and invariance laws.
 
 1. Rest state: zero energy and stress at F = I, E = 0, Cv = I (0, 1, 4 units).
 2. Objectivity: psi(QF) = psi(F), P(QF) = Q P(F), Cv_new(QF) = Cv_new(F),
    D(QF) = Q D(F) Q; balance of angular momentum P F^T symmetric.
 3. Closed forms: simple shear, incompressible uniaxial, pure dilatation,
-   electrostatic (Maxwell) stress, the equal-biaxial block of NOTES.md
+   electrostatic (Maxwell) stress, the equal-biaxial block of docs/paper-notes.md
    (equilibrium and evolution equations).
 4. Consistent tangent vs finite differences of ``stress_and_update``, on Model IV
    and on a soft-bulk variant where the dCv/dF part is ~10 % of D (with K ~ 1e5 mu
@@ -99,7 +99,7 @@ def _vrate(F, Cv, mu, eta, Jm):
 
 
 # --------------------------------------------------------------------------------------
-# independent helpers (numpy, from NOTES.md)
+# independent helpers (numpy, from docs/paper-notes.md)
 # --------------------------------------------------------------------------------------
 def rel(a, b):
     a, b = np.asarray(a), np.asarray(b)
@@ -127,7 +127,7 @@ def random_F(rng, s=0.1):
 
 
 def rate_np(F, Cv, mu, eta, Jm):
-    """Flow rule of NOTES.md: (2 mu/eta) Je^(-2/3)/H (C - tr(C Cv^-1)/3 Cv)."""
+    """Flow rule of docs/paper-notes.md: (2 mu/eta) Je^(-2/3)/H (C - tr(C Cv^-1)/3 Cv)."""
     C = F.T @ F
     Je = np.linalg.det(F) / np.sqrt(np.linalg.det(Cv))
     I1e = np.trace(C @ np.linalg.inv(Cv))
@@ -308,10 +308,10 @@ def test_electrostatic_stress_closed_form():
 
 @pytest.mark.parametrize("lam,xi,E0", [(1.03, 1.01, 2e7), (1.2, 0.95, 5e7), (0.9, 1.1, 0.0)])
 def test_equal_biaxial_block_notes(lam, xi, E0):
-    """NOTES.md block: F = diag(lam, lam, lam^-2), Cv = diag(xi^2, xi^2, xi^-4), E along z.
+    """docs/paper-notes.md block: F = diag(lam, lam, lam^-2), Cv = diag(xi^2, xi^2, xi^-4), E along z.
     sigma_xx - sigma_zz = mu_inf lam^4 [ (lam^-2 - lam^-8)/H_inf
         + mu_1/mu_inf (lam^-2 xi^-2 - lam^-8 xi^4)/H_1 - eps/mu_inf E0^2 ]
-    (zero at the NOTES equilibrium), and the flow rule reduces to
+    (zero at the paper notes' equilibrium), and the flow rule reduces to
     dxi/dt = mu_1/(3 eta_1 H_1) (lam^2 xi^-1 - lam^-4 xi^5)."""
     mu_inf, mu1, K, eta1, eps = 67e3, 67e3, 6.7e9, 3000.0, 4e-11
     mat = Material(mu_inf, K, 15.0, eps, 1100.0, mu=[mu1], K=[K], Jm=[5.0], eta=[eta1])
@@ -420,7 +420,7 @@ def test_update_preserves_det_and_spd_random_walk():
 
 def _be_literal(F, Cv_old, dt, mu, eta, Jm):
     """Literal backward Euler Cv = Cv_old + dt rate(F, Cv), by fixed-point iteration
-    (a contraction for dt << tau; the reference scheme of NOTES.md)."""
+    (a contraction for dt << tau; the reference scheme of docs/paper-notes.md)."""
     X = Cv_old.copy()
     for _ in range(100):
         X_new = Cv_old + dt * rate_np(F, X, mu, eta, Jm)

@@ -2,7 +2,7 @@
 
 Every expected value here is computed independently of the code under test: closed
 forms derived by hand (in the comments) and solved with scipy, or the numbers printed
-in /work/shared/reference/NOTES.md.
+in docs/paper-notes.md.
 """
 import math
 import re
@@ -14,7 +14,7 @@ from scipy import optimize
 import dejax  # noqa: F401  (float64)
 from dejax import reference as R
 
-# Block parameters of NOTES.md (SI)
+# Block parameters of docs/paper-notes.md (SI)
 MU_INF, JM_INF, MU1, JM1, ETA1 = 67e3, 15.0, 67e3, 5.0, 3000.0
 L, EPS = 1e-3, 4e-11
 
@@ -101,7 +101,7 @@ def test_eq41_voltage():
 
 
 def test_block_notes_numbers():
-    # NOTES.md: independent scipy solution of the reduced model
+    # docs/paper-notes.md: independent scipy solution of the reduced model
     expected = {8e3: (1.006534, 1.006602), 12e3: (1.015411, 1.015593), 16e3: (1.029470, 1.029894)}
     for phi_m, (l1, l3) in expected.items():
         lam = block([1.0, 3.0], phi_m)
@@ -149,7 +149,7 @@ def test_block_relaxed_unit():
     assert np.max(np.abs(lam - ref)) < 1e-6
     assert np.max(np.abs(lam[-2:] - ref[-2:])) < 1e-10  # fully relaxed during the hold
     assert np.max(np.abs(xi[:, 0] - lam)) < 1e-6
-    # NOTES.md's lam(3 s) = 1.029894 (16 kV) is this relaxed state (tau = 22 ms << 2 s hold)
+    # the paper notes' lam(3 s) = 1.029894 (16 kV) is this relaxed state (tau = 22 ms << 2 s hold)
     assert abs(lam[-1] - 1.029894) < 5e-7
 
 
