@@ -40,8 +40,9 @@ class Check:
         return bool(np.isfinite(self.error) and self.error <= self.tolerance)
 
 
-def _block_runs(phis, shape, t_end, dt, material, gauss_order=3, t_ramp=1.0):
-    """Lateral stretch of the ANCF block for several peak voltages: (n_phi, n+1).
+def block_runs(phis, shape, t_end, dt, material, gauss_order=3, t_ramp=1.0):
+    """(times (n+1,), lateral stretch (n_phi, n+1), Newton iterations (n_phi, n)) of the ANCF
+    block for several peak voltages.
 
     One compilation serves every voltage (the voltage is a traced leaf of the loading).
     The runs are sequential: under vmap, Newton's refactor/keep branch would run both."""
@@ -63,7 +64,7 @@ def block_vs_reduced(phis=(8e3, 12e3, 16e3), shapes=((1, 1, 1), (2, 2, 2)), t_en
     rows = []
     for shape in shapes:
         tic = time.perf_counter()
-        times, lam, _ = _block_runs(phis, shape, t_end, dt, mat)
+        times, lam, _ = block_runs(phis, shape, t_end, dt, mat)
         secs = time.perf_counter() - tic
         for k, phi in enumerate(phis):
             ref = reference.homogeneous_block_response(
@@ -79,7 +80,7 @@ def block_vs_closed_form(phis=(4e3, 8e3, 12e3, 16e3, 20e3), t_end=1.5, dt=1e-3, 
     """Hyperelastic block after a 1 s ramp against the closed-form Gent equilibrium."""
     mat = scenarios.block_material(mu=[], K=[], Jm=[], eta=[])
     tic = time.perf_counter()
-    times, lam, _ = _block_runs(phis, (1, 1, 1), t_end, dt, mat)
+    times, lam, _ = block_runs(phis, (1, 1, 1), t_end, dt, mat)
     secs = time.perf_counter() - tic
     rows = []
     for k, phi in enumerate(phis):
@@ -169,30 +170,16 @@ def generalized_alpha_energy(n_steps=1000, dt=2e-4, tol=1e-3):
 
 
 def element_vs_chrono(tol=1e-9):
-    """Mass matrix of one ANCF element against Project Chrono's reference file, if present."""
+    """Mass matrix of one ANCF element against Project Chrono's reference file (shipped in
+    ``dejax/verification/data``; FileNotFoundError naming it when absent)."""
     from .element import element_mass, element_reference_data, gauss_rule, NODE_CORNERS
+    from .verification import data_path
 
-    here = Path(__file__).resolve()
-    cands = [p / "shared/reference/chrono-ancf3843" for p in here.parents] + [
-        p / "reference/chrono-ancf3843" for p in here.parents
-    ]
-    folder = next((c for c in cands if c.exists()), None)
-    if folder is None:
-        return []
-    ref = np.loadtxt(folder / "UT_ANCFBrick_3843_MassMatrix.txt")
+    ref = np.loadtxt(data_path("chrono-ancf3843", "UT_ANCFBrick_3843_MassMatrix.txt"))
     P, W = gauss_rule(7)
     N, _, dV = element_reference_data(jnp.asarray(NODE_CORNERS * 0.5 + 0.5), jnp.broadcast_to(0.5 * jnp.eye(3), (8, 3, 3)), P, W)
     err = float(np.max(np.abs(np.asarray(element_mass(N, dV, 7850.0)) - ref)) / np.max(np.abs(ref)))
     return [Check("ANCF element mass matrix", "Project Chrono ANCF 3843", err, tol)]
-
-
-CASES = {
-    "element": element_vs_chrono,
-    "closed_form": block_vs_closed_form,
-    "reduced": block_vs_reduced,
-    "order": generalized_alpha_order,
-    "energy": generalized_alpha_energy,
-}
 
 
 def check_groups(quick: bool = False) -> list:

@@ -326,15 +326,3 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="print only the final table")
     p.set_defaults(func=_handler)
     return p
-
-
-def main(argv=None) -> int:  # pragma: no cover - convenience entry point
-    ap = argparse.ArgumentParser(prog="dejax")
-    sub = ap.add_subparsers(dest="command", required=True)
-    register(sub)
-    args = ap.parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -33,7 +33,7 @@ def test_block_viscous_delay_is_visible_and_relaxes():
     eta (mu_inf + mu_1) / (2 mu_1 mu_inf) = 45 ms, so by 3 s it is fully relaxed."""
     from dejax import reference, scenarios
 
-    times, lam, _ = verify._block_runs((16e3,), (1, 1, 1), 3.0, 1e-3, scenarios.block_material())
+    times, lam, _ = verify.block_runs((16e3,), (1, 1, 1), 3.0, 1e-3, scenarios.block_material())
     lam = lam[0]
     relaxed = reference.gent_equibiaxial_stretch(16e3, 1e-3, 67e3, 15.0, 4e-11)
     k1 = int(np.argmin(np.abs(times - 1.0)))

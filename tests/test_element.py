@@ -26,6 +26,7 @@ import dejax  # noqa: F401  (enables float64)
 import jax
 import jax.numpy as jnp
 from dejax import element as el
+from dejax.verification import data_path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import svk  # noqa: E402  (test-only material, tests/svk.py)
@@ -102,15 +103,8 @@ def rel_err(a, ref):
 # --------------------------------------------------------------------------------------
 # 1. Chrono ANCF 3843 reference data
 # --------------------------------------------------------------------------------------
-_CANDIDATES = [
-    Path(__file__).resolve().parents[2] / "shared" / "reference" / "chrono-ancf3843",
-    Path("/work/main/../shared/reference/chrono-ancf3843"),
-]
-CHRONO_DIR = next((p for p in _CANDIDATES if p.is_dir()), None)
-needs_chrono = pytest.mark.skipif(
-    CHRONO_DIR is None,
-    reason="Chrono reference folder shared/reference/chrono-ancf3843 not found next to the repository",
-)
+# shipped with the package (dejax/verification/data): the tests fail, not skip, without it
+CHRONO_DIR = data_path("chrono-ancf3843")
 
 E_YOUNG, NU, RHO = 210e9, 0.3, 7850.0
 LAM, MU = svk.lame(E_YOUNG, NU)
@@ -177,7 +171,6 @@ def case3_state(q0):
     return q
 
 
-@needs_chrono
 def test_chrono_mass_matrix(chrono):
     ref = load_chrono("MassMatrix", (32, 32))
     Mc = np.asarray(el.element_mass(chrono["N"], chrono["dV"], RHO))
@@ -188,7 +181,6 @@ def test_chrono_mass_matrix(chrono):
     assert np.isclose(Mc[::4, ::4].sum(), RHO * 1.0, rtol=1e-12)
 
 
-@needs_chrono
 def test_chrono_gravity(chrono):
     ref = load_chrono("Grav", (96,))
     Qg = np.asarray(el.element_gravity(chrono["N"], chrono["dV"], RHO, GRAV)).reshape(-1)
@@ -197,13 +189,11 @@ def test_chrono_gravity(chrono):
     assert np.isclose(Qg[2], -RHO * 9.80665 / 8.0, rtol=1e-12)
 
 
-@needs_chrono
 def test_chrono_internal_force_at_rest_is_zero(chrono):
     Q = np.asarray(chrono["force"](jnp.asarray(chrono["q0"])))
     assert np.max(np.abs(Q)) < 1e-3  # Chrono's own check (N)
 
 
-@needs_chrono
 def test_chrono_internal_force_small_displacement(chrono):
     ref = load_chrono("IntFrcSmallDispNoVel", (96,))
     q = jnp.asarray(case3_state(chrono["q0"]))
@@ -214,7 +204,6 @@ def test_chrono_internal_force_small_displacement(chrono):
     assert rel_err(Qs, ref) < TOL_CHRONO
 
 
-@needs_chrono
 def test_chrono_internal_force_small_velocity_damped(chrono):
     ref = load_chrono("IntFrcNoDispSmallVel", (96,))
     q = jnp.asarray(chrono["q0"])
@@ -227,7 +216,6 @@ def test_chrono_internal_force_small_velocity_damped(chrono):
     assert rel_err(Qs, ref) < TOL_CHRONO
 
 
-@needs_chrono
 @pytest.mark.parametrize("case", ["NoDisp", "SmallDisp"])
 def test_chrono_stiffness_jacobian(chrono, case):
     ref = load_chrono(f"Jac{case}NoVelNoDamping", (96, 96))
