@@ -1,7 +1,7 @@
 """Post-processing: per-cycle measures, the Appendix-5 strain norm, VTU export, HDF5 snapshots.
 
 * ``cycle_table(time, x, v, freq)``: per-cycle x_max, x_min, mean, k_c and the loop
-  area of x against v (e.g. x_P against the nominal field) via ``fitting.features``.
+  area of x against v (e.g. x_P against the nominal field) via ``dejax.cycles``.
 * ``strain_norm_gauss(model, q)`` / ``strain_norm_nodes(q)``: the paper's Appendix-5
   strain norm eps = sqrt(ex^2 + ey^2 + ez^2), ex = (r_x . r_x - 1)/2 (likewise y, z),
   at the Gauss points (from F) and at the nodes (from the nodal gradient coordinates
@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import cycles
 from . import model as mdl
 
 # ----------------------------------------------------------------------------- cycles
@@ -39,8 +40,6 @@ def cycle_table(time, x, v=None, freq=None, *, T=None, t0=None) -> dict:
     with fewer than 2 cycles) and loop_area (signed area of the loop of x against v, units
     x*v, positive when x lags v; NaN without v). Empty arrays when no whole cycle is covered.
     """
-    from fitting import features as ft
-
     t = np.asarray(time, dtype=float)
     x = np.asarray(x, dtype=float)
     if freq is None and T is None:
@@ -49,7 +48,7 @@ def cycle_table(time, x, v=None, freq=None, *, T=None, t0=None) -> dict:
     n_whole = int(np.floor((t[-1] - (t[0] if t0 is None else t0)) / period + 1e-9))
     if n_whole < 1:
         return {k: np.zeros(0) for k in CYCLE_COLUMNS}
-    feats = ft.cycle_features(t, x, None if v is None else np.asarray(v, dtype=float), T=period, t0=t0)
+    feats = cycles.cycle_features(t, x, None if v is None else np.asarray(v, dtype=float), T=period, t0=t0)
     n = int(feats["n_cycles"])
     start = (t[0] if t0 is None else t0) + period * np.arange(n)
     nan = np.full(n, np.nan)

@@ -3,8 +3,6 @@
 Modules:
   data      experiment files (one TOML + CSV traces): ``load_experiment``,
             ``load_trace_csv``, ``Experiment``, ``Trace``, ``DataError``
-  features  differentiable cycle measures (x_max, x_min, mean, k_c, loop
-            area, phase lag, harmonics)
   datasets  loaders for the measured VHB curves shipped under ``data/``
 
 Importing ``fitting`` imports ``dejax``, which enables float64 in JAX.

@@ -37,13 +37,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from dejax import cycles
 from dejax import integrate as it
 from dejax import loads
 
 from . import effects as fx
 
 __all__ = ["TraceData", "Forward", "CandidateResult", "Diagnosis", "diagnose", "estimate_noise",
-           "breakdown", "cycle_features", "write_report", "register", "handler", "forward_from_experiment",
+           "breakdown", "write_report", "register", "handler", "forward_from_experiment",
            "SineCmd"]
 
 
@@ -149,7 +150,7 @@ class Forward:
         return np.asarray(s(jnp.asarray(trace.t), jnp.asarray(y)))
 
 
-# ----------------------------------------------------------------------------- noise, features, breakdown
+# ----------------------------------------------------------------------------- noise, breakdown
 
 
 def estimate_noise(traces: Sequence[TraceData]) -> float:
@@ -162,43 +163,6 @@ def estimate_noise(traces: Sequence[TraceData]) -> float:
     return math.sqrt(num / (70.0 * max(den, 1)))
 
 
-def _cycle_ids(tr: TraceData) -> np.ndarray:
-    if not tr.freq:
-        return np.zeros(len(tr.t), dtype=int)
-    ids = np.floor((tr.t - tr.t[0]) * tr.freq + 1e-9).astype(int)
-    n_complete = max(int(np.floor((tr.t[-1] - tr.t[0]) * tr.freq + 1e-9)), 1)
-    return np.minimum(ids, n_complete - 1)  # the closing sample(s) join the last complete cycle
-
-
-def cycle_features(tr: TraceData, y: np.ndarray) -> dict:
-    """Per complete cycle: mean, amplitude (1st harmonic), phase lag to the command (rad,
-    positive = output lags), loop area (closed integral of y d phi_command, in output*V),
-    h2 (|2nd| / |1st| harmonic). Returns name -> (n_cycles,) arrays."""
-    out = {k: [] for k in ("mean", "amplitude", "phase_lag", "loop_area", "h2")}
-    if not tr.freq:
-        return {k: np.zeros(0) for k in out}
-    ids = _cycle_ids(tr)
-    u = tr.command
-    w = 2 * np.pi * tr.freq
-    for c in range(int(ids.max()) + 1):
-        m = ids == c
-        if m.sum() < 8 or (tr.t[m][-1] - tr.t[m][0]) < 0.9 / tr.freq:
-            continue
-        tt = tr.t[m]
-        A = np.stack([np.ones_like(tt), np.cos(w * tt), np.sin(w * tt), np.cos(2 * w * tt), np.sin(2 * w * tt)], 1)
-        cy, *_ = np.linalg.lstsq(A, y[m], rcond=None)
-        cu, *_ = np.linalg.lstsq(A, u[m], rcond=None)
-        h1y, h1u = complex(cy[1], -cy[2]), complex(cu[1], -cu[2])
-        out["mean"].append(cy[0])
-        out["amplitude"].append(abs(h1y))
-        lag = np.angle(h1u) - np.angle(h1y)
-        out["phase_lag"].append(float((lag + np.pi) % (2 * np.pi) - np.pi))
-        um, ym = np.append(u[m], u[m][0]), np.append(y[m], y[m][0])  # closed polygon
-        out["loop_area"].append(float(np.sum(0.5 * (ym[1:] + ym[:-1]) * np.diff(um))))
-        out["h2"].append(abs(complex(cy[3], -cy[4])) / max(abs(h1y), 1e-300))
-    return {k: np.asarray(v, dtype=float) for k, v in out.items()}
-
-
 def breakdown(traces: Sequence[TraceData], preds: Sequence[np.ndarray]) -> dict:
     """Residual (model - measured) broken down by trace/condition, cycle, loading/unloading,
     transient/steady state, and features (model - measured, per cycle and mean)."""
@@ -206,7 +170,7 @@ def breakdown(traces: Sequence[TraceData], preds: Sequence[np.ndarray]) -> dict:
     feat_acc: dict = {}
     for tr, yp in zip(traces, preds):
         r = np.asarray(yp) - tr.y
-        ids = _cycle_ids(tr)
+        ids = cycles.trace_cycle_ids(tr.t, tr.freq)
         du = np.gradient(tr.command, tr.t)
         load = du > 0
         entry = {"name": tr.name, "role": tr.role, "conditions": dict(tr.conditions), "rms": _rms(r),
@@ -214,7 +178,8 @@ def breakdown(traces: Sequence[TraceData], preds: Sequence[np.ndarray]) -> dict:
                  "per_cycle_rms": [_rms(r[ids == c]) for c in range(int(ids.max()) + 1)],
                  "loading_rms": _rms(r[load]), "unloading_rms": _rms(r[~load]),
                  "transient_rms": _rms(r[ids == 0]), "steady_rms": _rms(r[ids > 0]) if np.any(ids > 0) else None}
-        fm, fp = cycle_features(tr, tr.y), cycle_features(tr, np.asarray(yp))
+        fm = cycles.trace_cycle_measures(tr.t, tr.y, tr.command, tr.freq)
+        fp = cycles.trace_cycle_measures(tr.t, yp, tr.command, tr.freq)
         entry["features"] = {k: {"measured": fm[k].tolist(), "model": fp[k].tolist(),
                                  "gap": (fp[k] - fm[k]).tolist()} for k in fm}
         res["traces"].append(entry)

@@ -34,9 +34,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from dejax import integrate as it
+from dejax import cycles as feat
 from dejax import loads, scenarios
 
-from . import features as feat
 from .fit import PARAM_PATTERN, apply_params, material_params
 
 __all__ = ["Setup", "outputs", "sensitivity", "finite_differences", "default_params", "register"]

@@ -6,7 +6,6 @@ checked in seconds; the simulation-based end-to-end check is in the slow tier, `
 (it compiles the block simulation: ~1-2 min on a shared CPU)."""
 import argparse
 import json
-import math
 import os
 
 import jax.numpy as jnp
@@ -46,22 +45,6 @@ def test_noise_estimate():
     tr = _traces({}, seed=3)
     s = dg.estimate_noise(tr)
     assert abs(s / SIGMA - 1) < 0.1
-
-
-def test_cycle_features_closed_form():
-    f, d = 2.0, 0.3
-    t = np.linspace(0, 3 / f, 241)
-    base = dg.SineCmd(2.0, f, phase=0.0, offset=-1.0)  # command sin(w t)
-    tr = dg.TraceData("x", t, np.zeros_like(t), base, freq=f)
-    y = 0.5 + 0.2 * np.sin(2 * np.pi * f * t - d)
-    F = dg.cycle_features(tr, y)
-    assert len(F["mean"]) == 3
-    np.testing.assert_allclose(F["mean"], 0.5, atol=1e-9)
-    np.testing.assert_allclose(F["amplitude"], 0.2, atol=1e-9)
-    np.testing.assert_allclose(F["phase_lag"], d, atol=1e-9)
-    np.testing.assert_allclose(F["h2"], 0.0, atol=1e-9)
-    # closed integral of y du over an ellipse: pi A_u A_y sin(d) (clockwise in (u, y) => sign)
-    np.testing.assert_allclose(np.abs(F["loop_area"]), math.pi * 1.0 * 0.2 * math.sin(d), rtol=2e-3)
 
 
 def test_control_no_false_alarm():

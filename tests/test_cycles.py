@@ -3,13 +3,14 @@
 Reference signal: x(t) = a + b sin(w t - delta) + c t, w = 2 pi f, v = V sin(w t).
 Per-cycle extrema of x follow from dx/dt = 0: cos(w t - delta) = -c / (b w).
 """
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import fitting  # noqa: F401  (float64)
-from fitting import features as F
+from dejax import cycles as F
 
 A, B, C, DELTA, FREQ = 0.2, 1.3, 0.4, 0.3, 30.0
 W = 2 * np.pi * FREQ
@@ -218,3 +219,22 @@ def test_traced_time_is_rejected_clearly():
     t = grid(2, 50.0)
     with pytest.raises(TypeError, match="concrete"):
         jax.jit(lambda tt: F.x_max(tt, jnp.sin(W * tt), FREQ))(t)
+
+
+def test_trace_cycle_measures_closed_form():
+    f, d = 2.0, 0.3
+    t = np.linspace(0, 3 / f, 241)
+    u = np.sin(2 * np.pi * f * t)  # command
+    y = 0.5 + 0.2 * np.sin(2 * np.pi * f * t - d)
+    M = F.trace_cycle_measures(t, y, u, f)
+    assert len(M["mean"]) == 3
+    np.testing.assert_allclose(M["mean"], 0.5, atol=1e-9)
+    np.testing.assert_allclose(M["amplitude"], 0.2, atol=1e-9)
+    np.testing.assert_allclose(M["phase_lag"], d, atol=1e-9)
+    np.testing.assert_allclose(M["h2"], 0.0, atol=1e-9)
+    # closed integral of y du over an ellipse: pi A_u A_y sin(d) (clockwise in (u, y) => sign)
+    np.testing.assert_allclose(np.abs(M["loop_area"]), math.pi * 1.0 * 0.2 * math.sin(d), rtol=2e-3)
+    # the closing sample joins the last cycle; no frequency: one cycle, no measures
+    ids = F.trace_cycle_ids(t, f)
+    assert ids[0] == 0 and ids[-1] == 2 and np.sum(ids == 2) == 81
+    assert F.trace_cycle_measures(t, y, u, None)["mean"].size == 0

@@ -1,7 +1,9 @@
-"""Cycle measures of periodic (or periodically driven) responses, in jax.numpy.
+"""Cycle measures of periodic (or periodically driven) responses.
 
-The paper's cycle measures (docs/paper-notes.md, Section 6) and a few more, written as
-pure functions so that a fit can differentiate through them:
+The paper's cycle measures (docs/paper-notes.md, "Cycle measures") and a few more, written
+in jax.numpy as pure functions so that a fit can differentiate through them; used by
+``dejax.outputs`` (per-cycle tables), ``dejax.sweep``, ``fitting.sensitivity`` and
+``fitting.diagnose``:
 
 ==================  ===========================  ===========================
 function            returns (shape)              units
@@ -20,6 +22,11 @@ function            returns (shape)              units
                     (n,), (n,)
 ``cycle_features``  dict of the above
 ==================  ===========================  ===========================
+
+``trace_cycle_measures`` (numpy, not differentiable) gives the per-cycle least-squares
+measures of a measured trace against its command that the gap diagnosis compares (mean,
+first-harmonic amplitude, phase lag, loop area, 2nd/1st harmonic ratio); see its
+docstring for how its cycles and measures differ from the ones above.
 
 Conventions
 -----------
@@ -94,6 +101,9 @@ __all__ = [
     "harmonics",
     "phase_lag",
     "cycle_features",
+    "trace_cycle_ids",
+    "trace_cycle_measures",
+    "TRACE_MEASURES",
 ]
 
 _TOL = 1e-9  # relative (to T) tolerance on cycle boundaries
@@ -498,3 +508,65 @@ def cycle_features(
         out["phase_lag"] = phase_lag(c.t, x, v, detrend=detrend, **kw)
         out["v_harmonics"] = harmonics(c.t, v, n=n_harmonics, detrend=detrend, **kw)
     return out
+
+
+# ---------------------------------------------------------------------------
+# per-cycle least-squares measures of a driven trace (numpy)
+# ---------------------------------------------------------------------------
+
+TRACE_MEASURES = ("mean", "amplitude", "phase_lag", "loop_area", "h2")
+"""The measures of ``trace_cycle_measures``, in order."""
+
+
+def trace_cycle_ids(t, freq) -> np.ndarray:
+    """Cycle index (n,) of each sample of a trace driven at ``freq`` (Hz): cycle k holds
+    ``t[0] + k/freq <= t < t[0] + (k + 1)/freq``, and the closing sample(s) after the last
+    complete cycle join it. Without a frequency (None or 0) every sample is in cycle 0."""
+    t = np.asarray(t, dtype=float)
+    if not freq:
+        return np.zeros(len(t), dtype=int)
+    ids = np.floor((t - t[0]) * freq + 1e-9).astype(int)
+    n_complete = max(int(np.floor((t[-1] - t[0]) * freq + 1e-9)), 1)
+    return np.minimum(ids, n_complete - 1)
+
+
+def trace_cycle_measures(t, y, u, freq) -> dict:
+    """Per complete cycle of ``y`` (n,) driven by the command ``u`` (n,, V) at ``freq`` (Hz):
+    name -> (n_cycles,) arrays of
+
+    * ``mean``: the constant of a least-squares fit of 1, cos, sin of harmonics 1 and 2 over
+      the cycle (units of y; the time average, unlike ``mean`` above);
+    * ``amplitude``: the first harmonic's amplitude of that fit (units of y);
+    * ``phase_lag``: lag of y's first harmonic behind u's (rad, wrapped to [-pi, pi),
+      positive when y lags);
+    * ``loop_area``: the closed integral of y du over the cycle's samples (units y V; the
+      opposite orientation to ``loop_area`` above, which integrates v dx);
+    * ``h2``: |2nd harmonic| / |1st harmonic| of y.
+
+    Cycles as ``trace_cycle_ids``; a cycle with fewer than 8 samples or spanning less than
+    0.9 of a period is left out. Empty arrays without a frequency."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    out = {k: [] for k in TRACE_MEASURES}
+    if not freq:
+        return {k: np.zeros(0) for k in out}
+    ids = trace_cycle_ids(t, freq)
+    w = 2 * np.pi * freq
+    for c in range(int(ids.max()) + 1):
+        m = ids == c
+        if m.sum() < 8 or (t[m][-1] - t[m][0]) < 0.9 / freq:
+            continue
+        tt = t[m]
+        A = np.stack([np.ones_like(tt), np.cos(w * tt), np.sin(w * tt), np.cos(2 * w * tt), np.sin(2 * w * tt)], 1)
+        cy, *_ = np.linalg.lstsq(A, y[m], rcond=None)
+        cu, *_ = np.linalg.lstsq(A, u[m], rcond=None)
+        h1y, h1u = complex(cy[1], -cy[2]), complex(cu[1], -cu[2])
+        out["mean"].append(cy[0])
+        out["amplitude"].append(abs(h1y))
+        lag = np.angle(h1u) - np.angle(h1y)
+        out["phase_lag"].append(float((lag + np.pi) % (2 * np.pi) - np.pi))
+        um, ym = np.append(u[m], u[m][0]), np.append(y[m], y[m][0])  # closed polygon
+        out["loop_area"].append(float(np.sum(0.5 * (ym[1:] + ym[:-1]) * np.diff(um))))
+        out["h2"].append(abs(complex(cy[3], -cy[4])) / max(abs(h1y), 1e-300))
+    return {k: np.asarray(v, dtype=float) for k, v in out.items()}
