@@ -1,5 +1,6 @@
-"""Command line: ``dejax run``, ``dejax verify`` and the verbs the other modules register
-(bench, fit, diagnose, sensitivity, plot, sweep).
+"""Command line: ``dejax run``, ``dejax verify``, ``dejax plot``, ``dejax sweep`` here, and the
+verbs registered by ``dejax.bench`` (bench) and ``fitting.cli`` (fit, sensitivity, diagnose):
+``verb_registrars``.
 
 Exit codes: 0 success, 1 simulation failure (reported with its time; ``run`` still writes
 the trajectory up to the last converged step, status = "failed"), 2 bad arguments or an
@@ -9,11 +10,14 @@ any computation; nothing is written).
 from __future__ import annotations
 
 import argparse
-import importlib
+import json
 import sys
 from pathlib import Path
 
 from . import compile_cache
+from .argtypes import float_list, mesh_shape, nonneg, positive, positive_int, rho_inf
+
+_mesh_shape = mesh_shape  # the name dejax.bench imports
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -40,100 +44,21 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _positive(name):
-    def conv(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not v > 0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text}")
-        return v
-
-    return conv
-
-
-def int_at_least(name, lowest: int):
-    """argparse type: a whole number >= ``lowest``; the error names the option."""
-
-    def conv(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a whole number, got {text!r}") from None
-        if v < lowest:
-            raise argparse.ArgumentTypeError(f"{name} must be >= {lowest}, got {text}")
-        return v
-
-    return conv
-
-
-def _positive_int(name):
-    return int_at_least(name, 1)
-
-
-def _nonneg(name):
-    def conv(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if v < 0:
-            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {text}")
-        return v
-
-    return conv
-
-
-def float_list(name):
-    """argparse type: comma-separated numbers, e.g. ``10,30,50`` -> [10.0, 30.0, 50.0]."""
-
-    def conv(text):
-        parts = [v.strip() for v in text.split(",") if v.strip()]
-        try:
-            values = [float(v) for v in parts]
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be comma-separated numbers, got {text!r}") from None
-        if not values:
-            raise argparse.ArgumentTypeError(f"{name} needs at least one number, got {text!r}")
-        return values
-
-    return conv
-
-
-def _mesh_shape(text):
-    parts = text.lower().split("x")
-    try:
-        shape = tuple(int(p) for p in parts)
-    except ValueError:
-        shape = ()
-    if len(shape) != 3 or min(shape) < 1:
-        raise argparse.ArgumentTypeError(f"mesh must look like 12x20x4 (three positive integers), got {text!r}")
-    return shape
-
-
-def _rho_inf(text):
-    v = _nonneg("--rho-inf")(text)
-    if v > 1:
-        raise argparse.ArgumentTypeError(f"--rho-inf must lie in [0, 1], got {text}")
-    return v
-
-
 def _common_solver_args(p, dt: float):
-    p.add_argument("--dt", type=_positive("--dt"), default=dt,
+    p.add_argument("--dt", type=positive("--dt"), default=dt,
                    help="time step (s); the run takes ceil(t_end / dt) equal steps, so the step used "
                         "(stored as dt) may be slightly smaller")
-    p.add_argument("--rho-inf", type=_rho_inf, default=0.8, help="generalized-alpha spectral radius (default 0.8)")
-    p.add_argument("--damping", type=_nonneg("--damping"), default=0.0, help="structural damping c_d (1/s), C = c_d M")
+    p.add_argument("--rho-inf", type=rho_inf, default=0.8, help="generalized-alpha spectral radius (default 0.8)")
+    p.add_argument("--damping", type=nonneg("--damping"), default=0.0, help="structural damping c_d (1/s), C = c_d M")
     p.add_argument("--gauss", type=int, default=None, choices=(2, 3, 4, 5),
                    help="Gauss points per direction (default: 3)")
-    p.add_argument("--newton-tol", type=_positive("--newton-tol"), default=1e-6,
+    p.add_argument("--newton-tol", type=positive("--newton-tol"), default=1e-6,
                    help="Newton tolerance: relative residual (default 1e-6), or the largest correction "
                         "(strain-like) with --newton-criterion correction")
     p.add_argument("--newton-criterion", default="residual", choices=("residual", "correction"),
                    help="Newton convergence test (default residual)")
     p.add_argument("--no-line-search", action="store_true", help="plain Newton steps (admissibility safeguard only)")
-    p.add_argument("--dt-min", type=_positive("--dt-min"), default=1e-6,
+    p.add_argument("--dt-min", type=positive("--dt-min"), default=1e-6,
                    help="smallest step of the cut-back (s, default 1e-6); a failure at dt-min is final")
     p.add_argument("--quasi-static", action="store_true", help="no inertia (equilibrium at every step)")
     p.add_argument("--volumetric", default="mixed", choices=("mixed", "displacement"),
@@ -143,7 +68,7 @@ def _common_solver_args(p, dt: float):
     p.add_argument("--vtu", default=None, metavar="DIR",
                    help="also write a ParaView time series into DIR: <out stem>.pvd + one VTU per frame "
                         "(displacement m, potential V, nominal_field V/m, strain_norm)")
-    p.add_argument("--vtu-frames", type=_positive_int("--vtu-frames"), default=50,
+    p.add_argument("--vtu-frames", type=positive_int("--vtu-frames"), default=50,
                    help="number of VTU frames (evenly spaced in time)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
@@ -158,29 +83,29 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run a scenario and write an HDF5 results file")
     rsub = run.add_subparsers(dest="scenario", required=True, parser_class=_Parser)
     b = rsub.add_parser("block", help="DE block under the Eq. (41) ramp-and-hold voltage (paper Sec. 4)")
-    b.add_argument("--phi-max", type=_nonneg("--phi-max"), default=12e3, help="peak voltage phi_m (V)")
-    b.add_argument("--t-end", type=_positive("--t-end"), default=3.0, help="end time (s)")
-    b.add_argument("--t-ramp", type=_positive("--t-ramp"), default=1.0, help="ramp duration (s)")
-    b.add_argument("--L", type=_positive("--L"), default=1e-3, help="cube side (m)")
-    b.add_argument("--mesh", type=_mesh_shape, default=(1, 1, 1), help="elements, e.g. 2x2x2")
+    b.add_argument("--phi-max", type=nonneg("--phi-max"), default=12e3, help="peak voltage phi_m (V)")
+    b.add_argument("--t-end", type=positive("--t-end"), default=3.0, help="end time (s)")
+    b.add_argument("--t-ramp", type=positive("--t-ramp"), default=1.0, help="ramp duration (s)")
+    b.add_argument("--L", type=positive("--L"), default=1e-3, help="cube side (m)")
+    b.add_argument("--mesh", type=mesh_shape, default=(1, 1, 1), help="elements, e.g. 2x2x2")
     b.add_argument("--hyperelastic", action="store_true", help="drop the viscous unit")
-    b.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None,
+    b.add_argument("--mu-inf", type=positive("--mu-inf"), default=None,
                    help="override mu_inf (Pa; default: the paper's 67e3)")
-    b.add_argument("--eta", type=_positive("--eta"), default=None,
+    b.add_argument("--eta", type=positive("--eta"), default=None,
                    help="override eta_1 (Pa s; default: the paper's 3000)")
     _common_solver_args(b, dt=1e-3)
 
     r = rsub.add_parser("rolled", help="rolled (tubular) DEA under the Eq. (42) sine voltage (paper Sec. 6)")
     r.add_argument("--model", default="IV", choices=("I", "II", "III", "IV", "hyperelastic"), help="Table 2 material")
-    r.add_argument("--freq", type=_positive("--freq"), default=30.0, help="voltage frequency f (Hz)")
-    r.add_argument("--phi-max", type=_nonneg("--phi-max"), default=50e3, help="peak voltage phi_m (V)")
-    r.add_argument("--cycles", type=_positive("--cycles"), default=10.0, help="number of voltage cycles")
-    r.add_argument("--mesh", type=_mesh_shape, default=(12, 20, 4), help="n_l x n_s x n_r elements")
-    r.add_argument("--h", type=_positive("--h"), default=2e-3, help="wall thickness (m)")
-    r.add_argument("--r", type=_positive("--r"), default=2e-3, help="inner radius (m)")
-    r.add_argument("--L", type=_positive("--L"), default=8e-3, help="length (m)")
+    r.add_argument("--freq", type=positive("--freq"), default=30.0, help="voltage frequency f (Hz)")
+    r.add_argument("--phi-max", type=nonneg("--phi-max"), default=50e3, help="peak voltage phi_m (V)")
+    r.add_argument("--cycles", type=positive("--cycles"), default=10.0, help="number of voltage cycles")
+    r.add_argument("--mesh", type=mesh_shape, default=(12, 20, 4), help="n_l x n_s x n_r elements")
+    r.add_argument("--h", type=positive("--h"), default=2e-3, help="wall thickness (m)")
+    r.add_argument("--r", type=positive("--r"), default=2e-3, help="inner radius (m)")
+    r.add_argument("--L", type=positive("--L"), default=8e-3, help="length (m)")
     r.add_argument("--point", default="P", choices=("P", "P_outer"), help="output point on the top face")
-    r.add_argument("--mu-inf", type=_positive("--mu-inf"), default=None,
+    r.add_argument("--mu-inf", type=positive("--mu-inf"), default=None,
                    help="override mu_inf (Pa; default: the --model's)")
     r.add_argument("--mu", default=None, help="override the viscous mu_s, comma-separated (Pa; default: the --model's)")
     r.add_argument("--eta", default=None,
@@ -189,11 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     _common_solver_args(r, dt=1e-4)
 
     t = rsub.add_parser("torsional", help="twisted torsional strip, phibar ramp (paper Sec. 5)")
-    t.add_argument("--phibar-max", type=_nonneg("--phibar-max"), default=0.5, help="final dimensionless voltage")
-    t.add_argument("--t-ramp", type=_positive("--t-ramp"), default=1.0, help="ramp duration (s)")
-    t.add_argument("--t-end", type=_positive("--t-end"), default=None, help="end time (s), default t_ramp")
+    t.add_argument("--phibar-max", type=nonneg("--phibar-max"), default=0.5, help="final dimensionless voltage")
+    t.add_argument("--t-ramp", type=positive("--t-ramp"), default=1.0, help="ramp duration (s)")
+    t.add_argument("--t-end", type=positive("--t-end"), default=None, help="end time (s), default t_ramp")
     t.add_argument("--viscous", action="store_true", help="add the paper's viscous unit")
-    t.add_argument("--mesh", type=_mesh_shape, default=(48, 8, 2), help="length x width x thickness elements")
+    t.add_argument("--mesh", type=mesh_shape, default=(48, 8, 2), help="length x width x thickness elements")
     t.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
     _common_solver_args(t, dt=1e-2)
 
@@ -202,17 +127,19 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--json", default=None, help="also write the table as JSON to this path")
     v.add_argument("--quiet", action="store_true", help="no progress output")
 
+    for register in verb_registrars():
+        register(sub)
+    return parser
+
+
+def verb_registrars() -> tuple:
+    """The ``register(subparsers)`` of every verb beyond run and verify, in the order of the
+    help: bench (``dejax.bench``), fit, sensitivity, diagnose (``fitting.cli``), plot, sweep."""
+    from fitting import cli as fitting_cli
+
     from . import bench
 
-    bench.register(sub)
-    for module in ("fitting.experiment", "fitting.sensitivity", "fitting.diagnose", "dejax.plot", "dejax.sweep"):
-        try:
-            mod = importlib.import_module(module)
-        except ImportError:  # an optional verb whose module is not installed
-            continue
-        if hasattr(mod, "register"):
-            mod.register(sub)
-    return parser
+    return (bench.register, fitting_cli.register, register_plot, register_sweep)
 
 
 def _floats(text, name):
@@ -432,6 +359,117 @@ def _cmd_verify(args):
 
     ok = verify.main(quick=args.quick, json_path=args.json, quiet=args.quiet)
     return 0 if ok else 1
+
+
+# ----------------------------------------------------------------------------- plot, sweep
+
+
+def plot_handler(args) -> int:
+    """``dejax plot``: PNG figures of a results file; prints their paths."""
+    from .plot import plot_file
+
+    try:
+        paths = plot_file(args.file, args.out)
+    except FileNotFoundError as e:
+        print(f"dejax: error: {e}", file=sys.stderr)
+        return 2
+    except (OSError, KeyError) as e:
+        print(f"dejax: error: cannot plot {args.file!r}: {e}", file=sys.stderr)
+        return 2
+    for p in paths:
+        print(p)
+    return 0
+
+
+def register_plot(subparsers):
+    """Add the ``plot`` verb: ``dejax plot results.h5 [--out DIR]``."""
+    p = subparsers.add_parser("plot", help="PNG figures of a results file (x(t), loop, k_c, deformed mesh)")
+    p.add_argument("file", help="results file (HDF5) written by dejax run")
+    p.add_argument("--out", default=None, help="folder for the PNGs (default: next to the file)")
+    p.set_defaults(func=plot_handler)
+    return p
+
+
+def _sweep_values(value, name):
+    """A list of floats from the parsed option (a list) or a comma-separated string."""
+    if isinstance(value, str):
+        try:
+            return float_list(name)(value)
+        except Exception as e:  # argparse.ArgumentTypeError outside argparse
+            raise ValueError(str(e)) from None
+    return [float(v) for v in value]
+
+
+def sweep_case_progress(stream):
+    """A ``run_sweep`` progress callback writing ``case k/n (x s, ETA h:mm:ss)`` lines to ``stream``."""
+    from .progress import format_duration
+
+    def report(k, n, wall, ok):
+        eta = wall / k * (n - k) if k else float("nan")
+        stream.write(f"  case {k}/{n}{'' if ok else ' FAILED'}  {wall:.1f} s  ETA {format_duration(eta)}\n")
+        stream.flush()
+
+    return report
+
+
+def sweep_handler(args) -> int:
+    """``dejax sweep``: the rolled tube's cycle features per case, as a table (and JSON)."""
+    from . import sweep
+
+    grid = {k: _sweep_values(getattr(args, k), "--" + k.replace("_", "-")) for k in sweep.SWEEPABLE
+            if getattr(args, k) is not None}
+    if not grid:
+        print("dejax: error: nothing to sweep: give at least one of --h --r --L --freq --phi-max", file=sys.stderr)
+        return 2
+    shape = mesh_shape(args.mesh) if isinstance(args.mesh, str) else tuple(args.mesh)
+    try:
+        cases = sweep.cases_from_grid(grid, dict(model=args.model), field_const=args.field_const)
+        report = None if getattr(args, "quiet", False) else sweep_case_progress(sys.stderr)
+        if report is not None:
+            sys.stderr.write(f"compiling the tube stepper ({'x'.join(map(str, shape))} elements; the first "
+                             f"{'case' if args.method == 'sequential' else 'batch'} includes it) ...\n")
+        rows, info = sweep.run_sweep(cases, shape, args.cycles, args.steps_per_cycle, args.method, progress=report)
+    except ValueError as e:
+        print(f"dejax: error: {e}", file=sys.stderr)
+        return 2
+    cols = list(grid) + ["x_max", "x_min", "mean", "k_c", "loop_area"]
+    print(" ".join(f"{c:>12}" for c in cols))
+    for r in rows:
+        print(" ".join(f"{r.get(c, float('nan')):12.5g}" for c in cols) + ("" if r["ok"] else f"  FAILED ({r['status']})"))
+    print(f"# {info['n_cases']} cases, {info['method']}, {info['n_devices']} device(s), {info['wall_s']:.1f} s",
+          file=sys.stderr)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"info": info, "rows": rows}, f, indent=1, default=float)
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+def register_sweep(subparsers):
+    """Add the ``sweep`` verb: e.g. ``dejax sweep --freq 10,30,50 --phi-max 25e3 --mesh 1x4x1``."""
+    from . import scenarios, sweep
+
+    p = subparsers.add_parser("sweep", help="rolled-DEA parameter sweep -> per-case cycle features")
+    base = sweep.cases_from_grid({})[0]
+    for k, hlp in (("h", "wall thickness (m)"), ("r", "inner radius (m)"), ("L", "length (m)"),
+                   ("freq", "frequency (Hz)"), ("phi_max", "peak voltage (V)")):
+        flag = "--" + k.replace("_", "-")
+        p.add_argument(flag, dest=k, type=float_list(flag), default=None,
+                       help=f"comma-separated {hlp} (default when not swept: {base[k]:g})")
+    p.add_argument("--model", default="IV", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
+    p.add_argument("--mesh", type=mesh_shape, default=(1, 4, 1), help="elements n_l x n_s x n_r")
+    p.add_argument("--cycles", type=positive_int("--cycles"), default=2, help="voltage cycles per case")
+    p.add_argument("--steps-per-cycle", type=positive_int("--steps-per-cycle"), default=40,
+                   help="time steps per cycle (dt = 1 / (freq x steps))")
+    p.add_argument("--method", choices=("sequential", "vmap"), default="sequential",
+                   help="one compiled run case after case, or all cases in one vmapped run")
+    p.add_argument("--field-const", action="store_true", help="scale phi_max with h (constant phi_max/h)")
+    p.add_argument("--json", default=None, help="also write rows + timing info as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=sweep_handler)
+    return p
+
+
+# ----------------------------------------------------------------------------- output paths, main
 
 
 OUTPUT_PATHS = {

@@ -198,39 +198,3 @@ def plot_file(path, out_dir=None) -> list[Path]:
                 plot_mesh(q[:, 0, :], mesh.conn, vals, ax, title=f"t = {float(tt):.4g} s" if tt is not None else None)
                 save(fig, f"snap{k}")
     return written
-
-
-def handler(args) -> int:
-    try:
-        paths = plot_file(args.file, args.out)
-    except FileNotFoundError as e:
-        print(f"dejax: error: {e}", file=sys.stderr)
-        return 2
-    except (OSError, KeyError) as e:
-        print(f"dejax: error: cannot plot {args.file!r}: {e}", file=sys.stderr)
-        return 2
-    for p in paths:
-        print(p)
-    return 0
-
-
-def register(subparsers):
-    """Add the ``plot`` verb to an argparse subparsers object."""
-    p = subparsers.add_parser("plot", help="PNG figures of a results file (x(t), loop, k_c, deformed mesh)")
-    p.add_argument("file", help="results file (HDF5) written by dejax run")
-    p.add_argument("--out", default=None, help="folder for the PNGs (default: next to the file)")
-    p.set_defaults(func=handler)
-    return p
-
-
-def main(argv=None) -> int:
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="dejax")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -19,8 +19,6 @@ phi_max with h to keep phi_max/h fixed (paper Fig. 20).
 from __future__ import annotations
 
 import itertools
-import json
-import sys
 import time
 
 import equinox as eqx
@@ -201,86 +199,3 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
     info = dict(method=method, n_devices=len(jax.devices()), n_cases=len(cases), wall_s=wall, first_s=first_s,
                 shape=list(shape), n_cycles=n_cycles, steps_per_cycle=steps_per_cycle)
     return rows, info
-
-
-# ----------------------------------------------------------------------------- CLI
-
-
-def _values(value, name):
-    """A list of floats from the parsed option (a list) or a comma-separated string."""
-    if isinstance(value, str):
-        from .cli import float_list
-
-        try:
-            return float_list(name)(value)
-        except Exception as e:  # argparse.ArgumentTypeError outside argparse
-            raise ValueError(str(e)) from None
-    return [float(v) for v in value]
-
-
-def case_progress(stream):
-    """A ``run_sweep`` progress callback writing ``case k/n (x s, ETA h:mm:ss)`` lines to ``stream``."""
-    from .progress import format_duration
-
-    def report(k, n, wall, ok):
-        eta = wall / k * (n - k) if k else float("nan")
-        stream.write(f"  case {k}/{n}{'' if ok else ' FAILED'}  {wall:.1f} s  ETA {format_duration(eta)}\n")
-        stream.flush()
-
-    return report
-
-
-def handler(args) -> int:
-    from .cli import _mesh_shape
-
-    grid = {k: _values(getattr(args, k), "--" + k.replace("_", "-")) for k in SWEEPABLE
-            if getattr(args, k) is not None}
-    if not grid:
-        print("dejax: error: nothing to sweep: give at least one of --h --r --L --freq --phi-max", file=sys.stderr)
-        return 2
-    shape = _mesh_shape(args.mesh) if isinstance(args.mesh, str) else tuple(args.mesh)
-    try:
-        cases = cases_from_grid(grid, dict(model=args.model), field_const=args.field_const)
-        report = None if getattr(args, "quiet", False) else case_progress(sys.stderr)
-        if report is not None:
-            sys.stderr.write(f"compiling the tube stepper ({'x'.join(map(str, shape))} elements; the first "
-                             f"{'case' if args.method == 'sequential' else 'batch'} includes it) ...\n")
-        rows, info = run_sweep(cases, shape, args.cycles, args.steps_per_cycle, args.method, progress=report)
-    except ValueError as e:
-        print(f"dejax: error: {e}", file=sys.stderr)
-        return 2
-    cols = list(grid) + ["x_max", "x_min", "mean", "k_c", "loop_area"]
-    print(" ".join(f"{c:>12}" for c in cols))
-    for r in rows:
-        print(" ".join(f"{r.get(c, float('nan')):12.5g}" for c in cols) + ("" if r["ok"] else f"  FAILED ({r['status']})"))
-    print(f"# {info['n_cases']} cases, {info['method']}, {info['n_devices']} device(s), {info['wall_s']:.1f} s",
-          file=sys.stderr)
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"info": info, "rows": rows}, f, indent=1, default=float)
-    return 0 if all(r["ok"] for r in rows) else 1
-
-
-def register(subparsers):
-    """Add the ``sweep`` verb: e.g. ``dejax sweep --freq 10,30,50 --phi-max 25e3 --mesh 1x4x1``."""
-    from .cli import _mesh_shape, _positive_int, float_list
-
-    p = subparsers.add_parser("sweep", help="rolled-DEA parameter sweep -> per-case cycle features")
-    base = cases_from_grid({})[0]
-    for k, hlp in (("h", "wall thickness (m)"), ("r", "inner radius (m)"), ("L", "length (m)"),
-                   ("freq", "frequency (Hz)"), ("phi_max", "peak voltage (V)")):
-        flag = "--" + k.replace("_", "-")
-        p.add_argument(flag, dest=k, type=float_list(flag), default=None,
-                       help=f"comma-separated {hlp} (default when not swept: {base[k]:g})")
-    p.add_argument("--model", default="IV", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
-    p.add_argument("--mesh", type=_mesh_shape, default=(1, 4, 1), help="elements n_l x n_s x n_r")
-    p.add_argument("--cycles", type=_positive_int("--cycles"), default=2, help="voltage cycles per case")
-    p.add_argument("--steps-per-cycle", type=_positive_int("--steps-per-cycle"), default=40,
-                   help="time steps per cycle (dt = 1 / (freq x steps))")
-    p.add_argument("--method", choices=("sequential", "vmap"), default="sequential",
-                   help="one compiled run case after case, or all cases in one vmapped run")
-    p.add_argument("--field-const", action="store_true", help="scale phi_max with h (constant phi_max/h)")
-    p.add_argument("--json", default=None, help="also write rows + timing info as JSON")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=handler)
-    return p

@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import sys
 import time as _time
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -44,7 +43,7 @@ from dejax import loads
 from . import effects as fx
 
 __all__ = ["TraceData", "Forward", "CandidateResult", "Diagnosis", "diagnose", "estimate_noise",
-           "breakdown", "write_report", "register", "handler", "forward_from_experiment",
+           "breakdown", "write_report", "forward_from_experiment",
            "SineCmd"]
 
 
@@ -559,7 +558,7 @@ def write_report(diag: Diagnosis, traces: Sequence[TraceData], out, title: str =
     return {"markdown": str(out / "report.md"), "json": str(out / "report.json"), "figures": [str(out / f) for f in figs]}
 
 
-# ----------------------------------------------------------------------------- experiment files, CLI
+# ----------------------------------------------------------------------------- experiment files
 
 
 def _history(tr) -> object:
@@ -606,48 +605,6 @@ def forward_from_experiment(exp) -> tuple[Forward, list[TraceData]]:
     transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
     fwd = Forward(prob, "lateral_stretch", rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
     return fwd, traces
-
-
-def register(subparsers) -> None:
-    """Add the ``diagnose`` verb: ``dejax diagnose experiment.toml --out DIR``."""
-    p = subparsers.add_parser("diagnose", help="diagnose the sim-to-real gap of an experiment (report in --out)")
-    p.add_argument("experiment", help="experiment TOML file (fitting.data schema)")
-    p.add_argument("--out", default="report", help="output directory (report.md, report.json, PNGs)")
-    p.add_argument("--effects", default=None, help="comma-separated candidate effects (default: the experiment's "
-                   "[effects] tables, else the whole library)")
-    from dejax.cli import _positive, int_at_least
-
-    p.add_argument("--noise", type=_positive("--noise"), default=None,
-                   help="noise sigma in output units (default: estimated from the traces)")
-    p.add_argument("--max-iter", type=int_at_least("--max-iter", 1), default=8,
-                   help="Levenberg-Marquardt iterations per candidate")
-    p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
-    p.set_defaults(func=handler)
-
-
-def handler(args) -> int:
-    from .data import DataError, load_experiment
-
-    try:
-        exp = load_experiment(args.experiment)
-        fwd, traces = forward_from_experiment(exp)
-        if args.effects:
-            cands = [s.strip() for s in args.effects.split(",") if s.strip()]
-        else:
-            cands = list(exp.effects) or None
-        for c in cands or []:
-            fx.get(c)
-        start = fx.from_experiment(exp) if exp.effects else None
-        diag = diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
-                        verbose=not getattr(args, "quiet", False))
-    except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
-        print(f"dejax diagnose: error: {e}", file=sys.stderr)
-        return 2
-    files = write_report(diag, traces, args.out, title=f"Gap diagnosis: {exp.name}")
-    print(diag.table())
-    print(f"verdict: {diag.verdict}")
-    print(f"report: {files['markdown']}")
-    return 0
 
 
 # ----------------------------------------------------------------------------- synthetic studies

@@ -1,4 +1,4 @@
-"""Forward models for fitting, built from scenarios, and the ``dejax fit`` verb.
+"""Forward models for fitting, built from scenarios (the ``dejax fit`` verb is in ``fitting.cli``).
 
 * ``UniaxialForward``: stretch-controlled uniaxial test (``dejax.scenarios.uniaxial``,
   1 element by default); ``data`` = dict(times (N+1,), knots_t, knots_lam, t_obs,
@@ -9,16 +9,11 @@
 * ``uniaxial_target(...)``, ``hossain_target(peak, rate, ...)``: Targets for fitting.fit.
 * ``from_experiment(exp)``: (forward, params0, free, bounds, targets, holdout, options)
   from a ``fitting.data.Experiment``.
-* ``register(subparsers)``: adds ``fit`` (``dejax fit experiment.toml --out DIR``).
 
 Every trace of one forward is simulated on the same number of steps N (dt =
 T / N varies between traces) so that compiled code is shared.
 """
 from __future__ import annotations
-
-import argparse
-import sys
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -32,7 +27,7 @@ from dejax.material import Material
 from .fit import PARAM_PATTERN, Target, fit
 
 __all__ = ["Interp", "UniaxialForward", "BlockForward", "RolledForward", "uniaxial_target", "hossain_target",
-           "material_from", "from_experiment", "run_experiment", "register"]
+           "material_from", "from_experiment", "run_experiment"]
 
 
 class Interp(eqx.Module):
@@ -280,49 +275,3 @@ def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=No
     if out is not None:
         res.save(out, plots=plots)
     return res
-
-
-# ----------------------------------------------------------------------------- CLI
-
-
-def _handler(args) -> int:
-    from .data import DataError
-
-    try:
-        res = run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps, lbfgs_steps=args.lbfgs_steps,
-                             n_steps=args.steps, max_points=args.max_points, verbose=not args.quiet,
-                             plots=not args.no_plots)
-    except (DataError, ValueError, KeyError, FileNotFoundError) as e:
-        print(f"dejax fit: error: {e}", file=sys.stderr)
-        return 2
-    except FloatingPointError as e:
-        print(f"dejax fit: {e}", file=sys.stderr)
-        return 1
-    if args.quiet:
-        print(res.table())
-    if args.out:
-        print(f"wrote {Path(args.out) / 'fit.json'}")
-    return 0
-
-
-def register(subparsers) -> argparse.ArgumentParser:
-    """Add the ``fit`` verb to an argparse subparsers object (func=handler)."""
-    p = subparsers.add_parser("fit", help="fit material parameters to an experiment file (TOML + CSV)",
-                              description="Fit the [fit] free parameters of an experiment TOML to its 'fit' "
-                                          "traces; report held-out errors; write fit.json and PNGs to --out.")
-    p.add_argument("experiment", help="experiment TOML file")
-    p.add_argument("--out", default=None, help="output folder (fit.json, PNG plots)")
-    from dejax.cli import int_at_least
-
-    p.add_argument("--adam-steps", type=int_at_least("--adam-steps", 0), default=None,
-                   help="Adam iterations (default: max_iter / 2)")
-    p.add_argument("--lbfgs-steps", type=int_at_least("--lbfgs-steps", 0), default=None,
-                   help="L-BFGS iterations (default: the rest of max_iter)")
-    p.add_argument("--steps", type=int_at_least("--steps", 1), default=None,
-                   help="time steps per trace (default: from the data / [solver] dt)")
-    p.add_argument("--max-points", type=int_at_least("--max-points", 2), default=None,
-                   help="subsample each trace to at most this many points (default: all)")
-    p.add_argument("--no-plots", action="store_true", help="write fit.json only")
-    p.add_argument("--quiet", action="store_true", help="print only the final table")
-    p.set_defaults(func=_handler)
-    return p

@@ -9,7 +9,7 @@ rho, mu_i, K_i, Jm_i, eta_i, c_d) to a dict of arrays:
 * ``x_P`` (n+1,): axial displacement of point P (m) at every grid time,
 * per whole cycle of the excitation: ``x_max``, ``x_min``, ``mean`` (m),
   ``k_c`` (-, when >= 2 cycles) and ``loop_area`` (x_P against voltage, V m),
-  from ``fitting.features``.
+  from ``dejax.cycles``.
 
 ``sensitivity(params, names, setup)`` returns the values and the Jacobians
 d output / d p (``jax.jacfwd``: k forward tangents pushed through mesh generation
@@ -17,16 +17,12 @@ d output / d p (``jax.jacfwd``: k forward tangents pushed through mesh generatio
 time stepping, whose per-step derivatives are implicit), plus timings of one
 simulation and of the Jacobian (both after compilation).
 
-``register(subparsers)`` adds the ``sensitivity`` verb.
+The ``sensitivity`` verb is in ``fitting.cli``.
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
-import sys
 import time as _time
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -35,11 +31,11 @@ import numpy as np
 
 from dejax import integrate as it
 from dejax import cycles as feat
-from dejax import loads, scenarios
+from dejax import scenarios
 
 from .fit import PARAM_PATTERN, apply_params, material_params
 
-__all__ = ["Setup", "outputs", "sensitivity", "finite_differences", "default_params", "register"]
+__all__ = ["Setup", "outputs", "sensitivity", "finite_differences", "default_params", "check_names"]
 
 GEOMETRY = ("h", "L", "r")
 
@@ -71,7 +67,8 @@ def default_params(setup: Setup) -> dict:
     return p
 
 
-def _check_names(names, params):
+def check_names(names, params):
+    """KeyError naming the first of ``names`` that is no parameter or has no value in ``params``."""
     for k in names:
         if k not in GEOMETRY and not PARAM_PATTERN.match(k):
             raise KeyError(f"unknown parameter {k!r}: geometry h, L, r or a material parameter "
@@ -132,7 +129,7 @@ def sensitivity(params: dict, names, setup: Setup = Setup(), timing: bool = True
     Timings are of the compiled functions (best of 2 runs each when ``timing``).
     """
     names = tuple(names)
-    _check_names(names, params)
+    check_names(names, params)
     base = {k: float(v) for k, v in params.items()}
     p = jnp.asarray([base[k] for k in names])
     fv, fj = _compiled(names, setup, "value"), _compiled(names, setup, "jac")
@@ -180,69 +177,3 @@ def relative_error(J, J_ref) -> float:
     den = np.max(np.abs(R2), axis=0)
     den = np.where(den > 0, den, 1.0)
     return float(np.max(np.max(np.abs(J2 - R2), axis=0) / den))
-
-
-# ----------------------------------------------------------------------------- CLI
-
-
-def _handler(args) -> int:
-    try:
-        shape = tuple(int(s) for s in args.mesh.lower().split("x"))
-        if len(shape) != 3:
-            raise ValueError
-    except ValueError:
-        print(f"dejax sensitivity: error: --mesh must look like 1x4x1, got {args.mesh!r}", file=sys.stderr)
-        return 2
-    setup = Setup(shape=shape, model=args.model, freq=args.freq, phi_max=args.phi_max, t_end=args.t_end, dt=args.dt)
-    params = default_params(setup)
-    names = [s.strip() for s in args.params.split(",") if s.strip()]
-    try:
-        _check_names(names, params)
-        if not (args.dt > 0 and args.t_end > args.dt):
-            raise ValueError("need 0 < --dt < --t-end")
-    except (KeyError, ValueError) as e:
-        print(f"dejax sensitivity: error: {e}", file=sys.stderr)
-        return 2
-    res = sensitivity(params, names, setup)
-    if not np.all(np.isfinite(res["values"]["x_P"])):
-        print("dejax sensitivity: the simulation failed (non-finite x_P)", file=sys.stderr)
-        return 1
-    print(f"{'output':>10} " + " ".join(f"{'d/d' + k:>12}" for k in names) + "   (relative: p/y dy/dp)")
-    for k, J in res["jacobian"].items():
-        y = res["values"][k]
-        yi = y[-1] if np.ndim(y) else y
-        Ji = J[-1] if J.ndim > 1 else J
-        rel = Ji * res["p"] / (yi if yi != 0 else 1.0)
-        print(f"{k:>10} " + " ".join(f"{r:12.4g}" for r in rel) + ("  (last)" if np.ndim(y) else ""))
-    print(f"one simulation {res['seconds_simulation']:.3f} s, jacfwd ({len(names)} parameters) "
-          f"{res['seconds_jacobian']:.3f} s, ratio {res['ratio']:.2f}")
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        d = dict(names=names, p=res["p"].tolist(), setup=dataclasses.asdict(setup),
-                 values={k: np.asarray(v).tolist() for k, v in res["values"].items()},
-                 jacobian={k: np.asarray(v).tolist() for k, v in res["jacobian"].items()},
-                 seconds_simulation=res["seconds_simulation"], seconds_jacobian=res["seconds_jacobian"],
-                 ratio=res["ratio"], time=setup.times.tolist())
-        (out / "sensitivity.json").write_text(json.dumps(d))
-        print(f"wrote {out / 'sensitivity.json'}")
-    return 0
-
-
-def register(subparsers) -> argparse.ArgumentParser:
-    """Add the ``sensitivity`` verb to an argparse subparsers object (func=handler)."""
-    p = subparsers.add_parser("sensitivity", help="forward-mode derivatives of the tube's x_P and cycle features",
-                              description="Derivatives of x_P(t) and per-cycle features of the rolled tube with "
-                                          "respect to geometry (h, L, r) and material parameters, by jax.jacfwd.")
-    p.add_argument("--params", default="h,L,r,mu_inf,mu_1,eta_1", help="comma-separated parameter names")
-    p.add_argument("--model", default="I", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
-    p.add_argument("--mesh", default="1x4x1", help="axial x circumferential x radial elements")
-    from dejax.cli import _nonneg, _positive
-
-    p.add_argument("--freq", type=_positive("--freq"), default=100.0, help="sine frequency (Hz)")
-    p.add_argument("--phi-max", type=_nonneg("--phi-max"), default=25e3, help="peak voltage (V)")
-    p.add_argument("--t-end", type=_positive("--t-end"), default=0.03, help="end time (s)")
-    p.add_argument("--dt", type=_positive("--dt"), default=5e-4, help="time step (s)")
-    p.add_argument("--out", default=None, help="folder for sensitivity.json")
-    p.set_defaults(func=_handler)
-    return p

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from fitting import cli as fitting_cli
 from fitting import diagnose as dg
 from fitting import effects as fx
 
@@ -91,9 +92,9 @@ def test_report_and_cli_registration(tmp_path):
         assert os.path.getsize(f) > 1000
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers(dest="command")
-    dg.register(sub)
+    fitting_cli.register_diagnose(sub)
     a = ap.parse_args(["diagnose", "exp.toml", "--out", "rep"])
-    assert a.func is dg.handler and a.experiment == "exp.toml" and a.out == "rep"
+    assert a.func is fitting_cli.diagnose_handler and a.experiment == "exp.toml" and a.out == "rep"
 
 
 @pytest.mark.slow

@@ -90,11 +90,11 @@ def test_recovers_synthetic_viscoelastic_parameters(tmp_path):
 def _cli(argv):
     import argparse
 
-    from fitting import experiment
+    from fitting import cli as fitting_cli
 
     ap = argparse.ArgumentParser(prog="dejax")
     sub = ap.add_subparsers(dest="command", required=True)
-    experiment.register(sub)
+    fitting_cli.register_fit(sub)
     args = ap.parse_args(argv)
     return args.func(args)
 

@@ -101,7 +101,7 @@ def test_vtu_export_and_h5_snapshots_round_trip(tube, tmp_path):
 
 
 def test_plot_writes_pngs(tube, tmp_path):
-    from dejax import plot
+    from dejax import cli
 
     m = tube.model
     f = 30.0
@@ -115,7 +115,7 @@ def test_plot_writes_pngs(tube, tmp_path):
     import argparse
 
     parser = argparse.ArgumentParser()
-    plot.register(parser.add_subparsers(dest="command"))
+    cli.register_plot(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["plot", str(h5), "--out", str(tmp_path / "png")])
     assert args.func(args) == 0
     names = sorted(p.name for p in (tmp_path / "png").iterdir())

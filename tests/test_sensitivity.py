@@ -41,8 +41,10 @@ def test_relative_error_detects_mismatch():
 def test_sensitivity_verb_rejects_bad_arguments(capsys):
     import argparse
 
+    from fitting import cli as fitting_cli
+
     ap = argparse.ArgumentParser(prog="dejax")
-    S.register(ap.add_subparsers(dest="command", required=True))
+    fitting_cli.register_sensitivity(ap.add_subparsers(dest="command", required=True))
     for argv in (["sensitivity", "--params", "h,thickness"], ["sensitivity", "--mesh", "2x2"]):
         args = ap.parse_args(argv)
         assert args.func(args) == 2

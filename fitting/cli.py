@@ -1,0 +1,187 @@
+"""The command-line verbs of the fitting package, registered by ``dejax.cli``:
+
+* ``dejax fit experiment.toml --out DIR``: identify the ``[fit] free`` parameters
+  (``fitting.experiment``, ``fitting.fit``);
+* ``dejax sensitivity --params h,L,mu_inf``: forward-mode design sensitivities of the
+  rolled tube (``fitting.sensitivity``);
+* ``dejax diagnose experiment.toml --out DIR``: where the sim-to-real gap lies and which
+  candidate effect closes it (``fitting.diagnose``).
+
+Exit codes as ``dejax.cli``: 0 success, 1 a failed simulation, 2 bad arguments or input.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from dejax import scenarios
+from dejax.argtypes import int_at_least, nonneg, positive
+
+from . import diagnose as dg
+from . import effects as fx
+from . import experiment
+from . import sensitivity as S
+from .data import DataError, load_experiment
+
+
+def register(subparsers) -> None:
+    """Add the verbs fit, sensitivity and diagnose (in this order) to argparse subparsers."""
+    register_fit(subparsers)
+    register_sensitivity(subparsers)
+    register_diagnose(subparsers)
+
+
+# ----------------------------------------------------------------------------- fit
+
+
+def fit_handler(args) -> int:
+    """``dejax fit``: fit the experiment, print the table, write --out."""
+    try:
+        res = experiment.run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps,
+                                        lbfgs_steps=args.lbfgs_steps, n_steps=args.steps, max_points=args.max_points,
+                                        verbose=not args.quiet, plots=not args.no_plots)
+    except (DataError, ValueError, KeyError, FileNotFoundError) as e:
+        print(f"dejax fit: error: {e}", file=sys.stderr)
+        return 2
+    except FloatingPointError as e:
+        print(f"dejax fit: {e}", file=sys.stderr)
+        return 1
+    if args.quiet:
+        print(res.table())
+    if args.out:
+        print(f"wrote {Path(args.out) / 'fit.json'}")
+    return 0
+
+
+def register_fit(subparsers) -> argparse.ArgumentParser:
+    """Add the ``fit`` verb: ``dejax fit experiment.toml --out DIR``."""
+    p = subparsers.add_parser("fit", help="fit material parameters to an experiment file (TOML + CSV)",
+                              description="Fit the [fit] free parameters of an experiment TOML to its 'fit' "
+                                          "traces; report held-out errors; write fit.json and PNGs to --out.")
+    p.add_argument("experiment", help="experiment TOML file")
+    p.add_argument("--out", default=None, help="output folder (fit.json, PNG plots)")
+    p.add_argument("--adam-steps", type=int_at_least("--adam-steps", 0), default=None,
+                   help="Adam iterations (default: max_iter / 2)")
+    p.add_argument("--lbfgs-steps", type=int_at_least("--lbfgs-steps", 0), default=None,
+                   help="L-BFGS iterations (default: the rest of max_iter)")
+    p.add_argument("--steps", type=int_at_least("--steps", 1), default=None,
+                   help="time steps per trace (default: from the data / [solver] dt)")
+    p.add_argument("--max-points", type=int_at_least("--max-points", 2), default=None,
+                   help="subsample each trace to at most this many points (default: all)")
+    p.add_argument("--no-plots", action="store_true", help="write fit.json only")
+    p.add_argument("--quiet", action="store_true", help="print only the final table")
+    p.set_defaults(func=fit_handler)
+    return p
+
+
+# ----------------------------------------------------------------------------- sensitivity
+
+
+def sensitivity_handler(args) -> int:
+    """``dejax sensitivity``: derivatives of the tube's outputs, printed and written to --out."""
+    try:
+        shape = tuple(int(s) for s in args.mesh.lower().split("x"))
+        if len(shape) != 3:
+            raise ValueError
+    except ValueError:
+        print(f"dejax sensitivity: error: --mesh must look like 1x4x1, got {args.mesh!r}", file=sys.stderr)
+        return 2
+    setup = S.Setup(shape=shape, model=args.model, freq=args.freq, phi_max=args.phi_max, t_end=args.t_end, dt=args.dt)
+    params = S.default_params(setup)
+    names = [s.strip() for s in args.params.split(",") if s.strip()]
+    try:
+        S.check_names(names, params)
+        if not (args.dt > 0 and args.t_end > args.dt):
+            raise ValueError("need 0 < --dt < --t-end")
+    except (KeyError, ValueError) as e:
+        print(f"dejax sensitivity: error: {e}", file=sys.stderr)
+        return 2
+    res = S.sensitivity(params, names, setup)
+    if not np.all(np.isfinite(res["values"]["x_P"])):
+        print("dejax sensitivity: the simulation failed (non-finite x_P)", file=sys.stderr)
+        return 1
+    print(f"{'output':>10} " + " ".join(f"{'d/d' + k:>12}" for k in names) + "   (relative: p/y dy/dp)")
+    for k, J in res["jacobian"].items():
+        y = res["values"][k]
+        yi = y[-1] if np.ndim(y) else y
+        Ji = J[-1] if J.ndim > 1 else J
+        rel = Ji * res["p"] / (yi if yi != 0 else 1.0)
+        print(f"{k:>10} " + " ".join(f"{r:12.4g}" for r in rel) + ("  (last)" if np.ndim(y) else ""))
+    print(f"one simulation {res['seconds_simulation']:.3f} s, jacfwd ({len(names)} parameters) "
+          f"{res['seconds_jacobian']:.3f} s, ratio {res['ratio']:.2f}")
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        d = dict(names=names, p=res["p"].tolist(), setup=dataclasses.asdict(setup),
+                 values={k: np.asarray(v).tolist() for k, v in res["values"].items()},
+                 jacobian={k: np.asarray(v).tolist() for k, v in res["jacobian"].items()},
+                 seconds_simulation=res["seconds_simulation"], seconds_jacobian=res["seconds_jacobian"],
+                 ratio=res["ratio"], time=setup.times.tolist())
+        (out / "sensitivity.json").write_text(json.dumps(d))
+        print(f"wrote {out / 'sensitivity.json'}")
+    return 0
+
+
+def register_sensitivity(subparsers) -> argparse.ArgumentParser:
+    """Add the ``sensitivity`` verb: ``dejax sensitivity --params h,L,mu_inf --out DIR``."""
+    p = subparsers.add_parser("sensitivity", help="forward-mode derivatives of the tube's x_P and cycle features",
+                              description="Derivatives of x_P(t) and per-cycle features of the rolled tube with "
+                                          "respect to geometry (h, L, r) and material parameters, by jax.jacfwd.")
+    p.add_argument("--params", default="h,L,r,mu_inf,mu_1,eta_1", help="comma-separated parameter names")
+    p.add_argument("--model", default="I", choices=sorted(scenarios.TABLE2), help="Table 2 material model")
+    p.add_argument("--mesh", default="1x4x1", help="axial x circumferential x radial elements")
+    p.add_argument("--freq", type=positive("--freq"), default=100.0, help="sine frequency (Hz)")
+    p.add_argument("--phi-max", type=nonneg("--phi-max"), default=25e3, help="peak voltage (V)")
+    p.add_argument("--t-end", type=positive("--t-end"), default=0.03, help="end time (s)")
+    p.add_argument("--dt", type=positive("--dt"), default=5e-4, help="time step (s)")
+    p.add_argument("--out", default=None, help="folder for sensitivity.json")
+    p.set_defaults(func=sensitivity_handler)
+    return p
+
+
+# ----------------------------------------------------------------------------- diagnose
+
+
+def register_diagnose(subparsers) -> argparse.ArgumentParser:
+    """Add the ``diagnose`` verb: ``dejax diagnose experiment.toml --out DIR``."""
+    p = subparsers.add_parser("diagnose", help="diagnose the sim-to-real gap of an experiment (report in --out)")
+    p.add_argument("experiment", help="experiment TOML file (fitting.data schema)")
+    p.add_argument("--out", default="report", help="output directory (report.md, report.json, PNGs)")
+    p.add_argument("--effects", default=None, help="comma-separated candidate effects (default: the experiment's "
+                   "[effects] tables, else the whole library)")
+    p.add_argument("--noise", type=positive("--noise"), default=None,
+                   help="noise sigma in output units (default: estimated from the traces)")
+    p.add_argument("--max-iter", type=int_at_least("--max-iter", 1), default=8,
+                   help="Levenberg-Marquardt iterations per candidate")
+    p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
+    p.set_defaults(func=diagnose_handler)
+    return p
+
+
+def diagnose_handler(args) -> int:
+    """``dejax diagnose``: rank the candidate effects, print the table and verdict, write the report."""
+    try:
+        exp = load_experiment(args.experiment)
+        fwd, traces = dg.forward_from_experiment(exp)
+        if args.effects:
+            cands = [s.strip() for s in args.effects.split(",") if s.strip()]
+        else:
+            cands = list(exp.effects) or None
+        for c in cands or []:
+            fx.get(c)
+        start = fx.from_experiment(exp) if exp.effects else None
+        diag = dg.diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
+                           verbose=not getattr(args, "quiet", False))
+    except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
+        print(f"dejax diagnose: error: {e}", file=sys.stderr)
+        return 2
+    files = dg.write_report(diag, traces, args.out, title=f"Gap diagnosis: {exp.name}")
+    print(diag.table())
+    print(f"verdict: {diag.verdict}")
+    print(f"report: {files['markdown']}")
+    return 0
