@@ -32,17 +32,23 @@ class RampHold(eqx.Module):
 
 
 class Sine(eqx.Module):
-    """Paper Eq. (42): phi = phi_m/2 (1 + sin(2 pi f t + 1.5 pi)), from 0 V at t = 0. phi_m in V, f in Hz."""
+    """Paper Eq. (42): phi = offset + phi_m/2 (1 + sin(2 pi f t + phase)); with the defaults
+    phase = 1.5 pi, offset = 0 it starts from 0 V at t = 0. phi_m, offset in V, f in Hz,
+    phase in rad."""
 
     phi_m: jax.Array
     freq: jax.Array
+    phase: jax.Array
+    offset: jax.Array
 
-    def __init__(self, phi_m, freq):
+    def __init__(self, phi_m, freq, phase=1.5 * np.pi, offset=0.0):
         self.phi_m = jnp.asarray(phi_m, dtype=float)
         self.freq = jnp.asarray(freq, dtype=float)
+        self.phase = jnp.asarray(phase, dtype=float)
+        self.offset = jnp.asarray(offset, dtype=float)
 
     def __call__(self, t):
-        return 0.5 * self.phi_m * (1.0 + jnp.sin(2.0 * jnp.pi * self.freq * jnp.asarray(t) + 1.5 * jnp.pi))
+        return self.offset + 0.5 * self.phi_m * (1.0 + jnp.sin(2.0 * jnp.pi * self.freq * jnp.asarray(t) + self.phase))
 
 
 class PiecewiseLinear(eqx.Module):
@@ -85,6 +91,27 @@ class Scaled(eqx.Module):
 
     def __call__(self, t):
         return self.scale * self.base(t)
+
+
+SPEC_KINDS = ("sine", "ramp_hold", "constant", "piecewise")
+"""The kinds of a loading table (``from_spec``), as the experiment files name them."""
+
+
+def from_spec(spec):
+    """The history of a loading table (SI): ``{"kind": "sine", "phi_max", "freq"[, "phase",
+    "offset"]}`` (``Sine``), ``{"kind": "ramp_hold", "phi_max"[, "t_ramp"]}`` (``RampHold``),
+    ``{"kind": "constant", "phi"}`` (``Constant``) or ``{"kind": "piecewise", "times",
+    "values"}`` (``PiecewiseLinear``); optional keys take the classes' defaults."""
+    kind = spec["kind"]
+    if kind == "sine":
+        return Sine(spec["phi_max"], spec["freq"], spec.get("phase", 1.5 * np.pi), spec.get("offset", 0.0))
+    if kind == "ramp_hold":
+        return RampHold(spec["phi_max"], spec.get("t_ramp", 1.0))
+    if kind == "constant":
+        return Constant(spec["phi"])
+    if kind == "piecewise":
+        return PiecewiseLinear(spec["times"], spec["values"])
+    raise ValueError(f"unknown loading kind {kind!r}; known: {', '.join(SPEC_KINDS)}")
 
 
 def sample(histories, times) -> jax.Array:

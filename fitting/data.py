@@ -645,28 +645,17 @@ def _check_loading(spec: dict, file, key: str) -> dict:
 
 
 def loading_voltage(spec: Mapping[str, Any], t):
-    """Nominal voltage (V) of a loading table at times ``t`` (s).
+    """Nominal voltage (V) of a loading table at times ``t`` (s): ``dejax.loads.from_spec(spec)(t)``.
 
-    Written with jax.numpy: differentiable in the numeric entries of ``spec``
-    and in ``t``. See ``LOADING_KINDS`` and the module docstring for the forms.
+    Written with jax.numpy: differentiable in ``t`` and in the numeric entries of
+    ``spec`` (those of piecewise tables excepted). See ``LOADING_KINDS`` and the module
+    docstring for the forms.
     """
     import jax.numpy as jnp
 
-    t = jnp.asarray(t, dtype=float)
-    kind = spec["kind"]
-    if kind == "sine":
-        phase = spec.get("phase", LOADING_KINDS["sine"][1]["phase"])
-        offset = spec.get("offset", 0.0)
-        return offset + 0.5 * spec["phi_max"] * (1.0 + jnp.sin(2 * jnp.pi * spec["freq"] * t + phase))
-    if kind == "ramp_hold":
-        tr = spec.get("t_ramp", 1.0)
-        ramp = 0.5 * spec["phi_max"] * (1.0 + jnp.sin(jnp.pi * t / tr - 0.5 * jnp.pi))
-        return jnp.where(t <= tr, ramp, spec["phi_max"] * jnp.ones_like(t))
-    if kind == "constant":
-        return spec["phi"] * jnp.ones_like(t)
-    if kind == "piecewise":
-        return jnp.interp(t, jnp.asarray(spec["times"], dtype=float), jnp.asarray(spec["values"], dtype=float))
-    raise ValueError(f"unknown loading kind {kind!r}; known: {_fmt_list(LOADING_KINDS)}")
+    from dejax import loads
+
+    return loads.from_spec(spec)(jnp.asarray(t, dtype=float))
 
 
 # ---------------------------------------------------------------------------

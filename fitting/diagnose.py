@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -43,26 +42,7 @@ from dejax import loads
 from . import effects as fx
 
 __all__ = ["TraceData", "Forward", "CandidateResult", "Diagnosis", "diagnose", "estimate_noise",
-           "breakdown", "write_report", "forward_from_experiment",
-           "SineCmd"]
-
-
-class SineCmd(eqx.Module):
-    """phi = offset + phi_m/2 (1 + sin(2 pi f t + phase)) (fitting.data 'sine' loading)."""
-
-    phi_m: jax.Array
-    freq: jax.Array
-    phase: jax.Array
-    offset: jax.Array
-
-    def __init__(self, phi_m, freq, phase=1.5 * np.pi, offset=0.0):
-        self.phi_m = jnp.asarray(phi_m, dtype=float)
-        self.freq = jnp.asarray(freq, dtype=float)
-        self.phase = jnp.asarray(phase, dtype=float)
-        self.offset = jnp.asarray(offset, dtype=float)
-
-    def __call__(self, t):
-        return self.offset + 0.5 * self.phi_m * (1.0 + jnp.sin(2.0 * jnp.pi * self.freq * jnp.asarray(t) + self.phase))
+           "breakdown", "write_report", "forward_from_experiment"]
 
 
 @dataclasses.dataclass
@@ -562,15 +542,9 @@ def write_report(diag: Diagnosis, traces: Sequence[TraceData], out, title: str =
 
 
 def _history(tr) -> object:
+    """The commanded voltage history of a trace: its loading table, else its voltage column."""
     if tr.loading is not None and "voltage" not in tr.channels:
-        spec = tr.loading
-        if spec["kind"] == "sine":
-            return SineCmd(spec["phi_max"], spec["freq"], spec.get("phase", 1.5 * np.pi), spec.get("offset", 0.0))
-        if spec["kind"] == "ramp_hold":
-            return loads.RampHold(spec["phi_max"], spec.get("t_ramp", 1.0))
-        if spec["kind"] == "constant":
-            return loads.Constant(spec["phi"])
-        return loads.PiecewiseLinear(spec["times"], spec["values"])
+        return loads.from_spec(tr.loading)
     if "voltage" in tr.channels:
         return loads.PiecewiseLinear(tr.time, tr.channels["voltage"])
     raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
@@ -616,7 +590,7 @@ def block_forward(material=None, L: float = 1e-3, pad_to: int | None = None) -> 
     from dejax import scenarios as sc
 
     mat = fx.augment_material(sc.block_material() if material is None else material)
-    prob = sc.block(L=L, material=mat, voltage=SineCmd(12e3, 1.0))
+    prob = sc.block(L=L, material=mat, voltage=loads.Sine(12e3, 1.0))
     return Forward(prob, "lateral_stretch", pad_to=pad_to)
 
 
@@ -629,7 +603,7 @@ def synthetic_traces(fwd: Forward, conditions, truth: Mapping, noise: float, see
     for name, role, phi, f in conditions:
         n = int(round(n_cycles * samples_per_cycle))
         t = np.linspace(0.0, n_cycles / f, n + 1)
-        tr = TraceData(name, t, np.zeros_like(t), SineCmd(phi, f), role, {"phi_max": phi, "freq": f}, f)
+        tr = TraceData(name, t, np.zeros_like(t), loads.Sine(phi, f), role, {"phi_max": phi, "freq": f}, f)
         y = fwd.predict(truth, tr)
         tr.y = y + noise * rng.standard_normal(y.shape)
         out.append(tr)
