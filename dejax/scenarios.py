@@ -17,7 +17,7 @@ from . import constraints as cs
 from . import integrate as it
 from . import loads
 from . import model as mdl
-from . import stability
+from . import parameters, stability
 from .material import Material
 from .mesh import block_mesh
 
@@ -164,15 +164,7 @@ def block(
         gauss_order=gauss_order,
         damping=damping,
         volumetric=volumetric,
-        mu_inf=material.mu_inf,
-        K_inf=material.K_inf,
-        Jm_inf=material.Jm_inf,
-        eps=material.eps,
-        rho=material.rho,
-        mu=material.mu,
-        K=material.K,
-        Jm=material.Jm,
-        eta=material.eta,
+        **parameters.fields(material),
     )
     return Problem("block", model, it.Loading(voltages=(history,)), out, params, {"mesh": mesh})
 
@@ -240,7 +232,7 @@ def rolled(
     params = dict(
         scenario="rolled", model=model if isinstance(model, str) else "custom", freq=freq, phi_max=phi_max,
         h=h, r=r, L=L, mesh=list(shape), gauss_order=gauss_order, damping=damping, point=point, volumetric=volumetric,
-        **_material_params(material),
+        **parameters.fields(material),
     )
     return Problem("rolled", m, it.Loading(voltages=(history,)), _TubeOutputs(nodes[0], hh), params,
                    {"mesh": mesh, "P": int(nodes[0])})
@@ -325,14 +317,9 @@ def torsional(
     history = loads.Scaled(loads.PiecewiseLinear([0.0, t_ramp], [0.0, phibar_max]), scale)
     params = dict(scenario="torsional", phibar_max=phibar_max, t_ramp=t_ramp, thickness=thickness,
                   length=length_ratio * thickness, width=width_ratio * thickness, turns=turns, mesh=list(n),
-                  gauss_order=gauss_order, damping=damping, volumetric=volumetric, **_material_params(material))
+                  gauss_order=gauss_order, damping=damping, volumetric=volumetric, **parameters.fields(material))
     return Problem("torsional", m, it.Loading(voltages=(history,)), _TwistOutputs(x1), params,
                    {"mesh": mesh, "phibar_scale": scale})
-
-
-def _material_params(material: Material) -> dict:
-    return dict(mu_inf=material.mu_inf, K_inf=material.K_inf, Jm_inf=material.Jm_inf, eps=material.eps,
-                rho=material.rho, mu=material.mu, K=material.K, Jm=material.Jm, eta=material.eta)
 
 
 class _UniaxialOutputs:
@@ -399,7 +386,7 @@ def uniaxial(
     model = mdl.build_model(mesh, material, c, gauss_order=gauss_order, damping=damping, volumetric=volumetric)
     loading = it.Loading(voltages=(voltage,) if voltage is not None else (), motions=(_MinusOne(stretch),))
     params = dict(scenario="uniaxial", lx=lx, ly=ly, lz=lz, mesh=list(shape), gauss_order=gauss_order,
-                  damping=damping, volumetric=volumetric, **_material_params(material))
+                  damping=damping, volumetric=volumetric, **parameters.fields(material))
     return Problem("uniaxial", model, loading, _UniaxialOutputs(x1, mesh.nodes("z1"), lx, ly * lz, lz), params,
                    {"mesh": mesh}, rho_inf=0.0, quasi_static=True)
 

@@ -182,6 +182,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from dejax import parameters as mp
+
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: the tomli backport (a dependency there)
@@ -226,8 +228,8 @@ GEOMETRY_REQUIRED = {
     "uniaxial": (),
 }
 MATERIAL_KEYS = ("mu_inf", "K_inf", "Jm_inf", "eps", "rho", "units")
-MATERIAL_SCALARS = ("mu_inf", "K_inf", "Jm_inf", "eps", "rho")
-UNIT_KEYS = ("mu", "K", "Jm", "eta")
+MATERIAL_SCALARS = mp.SCALARS  # the TOML keys are the parameter names (dejax.parameters)
+UNIT_KEYS = mp.UNIT_KEYS
 # lower bound and whether it is strict, for the material parameters
 _POSITIVE = {"mu_inf": True, "K_inf": False, "Jm_inf": True, "eps": False, "rho": True,
              "mu": True, "K": False, "Jm": True, "eta": True}
@@ -730,27 +732,11 @@ class Experiment:
         overrides by parameter name (values may be jax arrays, e.g. inside a
         fit: ``Material(**exp.material_kwargs({"mu_1": theta[0]}))``)."""
         overrides = dict(overrides or {})
-        allowed = _material_parameter_names(self.n_units)
+        allowed = mp.names(self.n_units)
         for k in overrides:
             if k not in allowed:
                 raise KeyError(f"unknown material parameter '{k}'{_suggest(k, allowed)}; known: {_fmt_list(allowed)}")
-        kw = {k: overrides.get(k, self.material[k]) for k in MATERIAL_SCALARS}
-        for uk in UNIT_KEYS:
-            vals = [overrides.get(f"{uk}_{i + 1}", u[uk]) for i, u in enumerate(self.material["units"])]
-            if any(not isinstance(v, (int, float)) for v in vals):
-                import jax.numpy as jnp
-
-                kw[uk] = jnp.stack([jnp.asarray(v, dtype=float) for v in vals])
-            else:
-                kw[uk] = tuple(float(v) for v in vals)
-        return kw
-
-
-def _material_parameter_names(n_units: int) -> list[str]:
-    names = list(MATERIAL_SCALARS)
-    for i in range(n_units):
-        names += [f"{k}_{i + 1}" for k in UNIT_KEYS]
-    return names
+        return mp.material_kwargs({**self.parameters(), **overrides}, self.n_units)
 
 
 def _parameters(material, geometry, effects) -> dict[str, float]:

@@ -21,13 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from dejax import integrate as it
-from dejax import scenarios
-from dejax.material import Material
+from dejax import parameters, scenarios
 
-from .fit import PARAM_PATTERN, Target, fit
+from .fit import Target, fit
 
 __all__ = ["Interp", "UniaxialForward", "BlockForward", "RolledForward", "uniaxial_target", "hossain_target",
-           "material_from", "from_experiment", "run_experiment"]
+           "from_experiment", "run_experiment"]
 
 
 class Interp(eqx.Module):
@@ -38,13 +37,6 @@ class Interp(eqx.Module):
 
     def __call__(self, t):
         return jnp.interp(jnp.asarray(t, dtype=float), self.times, self.values)
-
-
-def material_from(params, n_units: int) -> Material:
-    """Material from a parameter dict (mu_inf, K_inf, Jm_inf, eps, rho, mu_i, K_i, Jm_i, eta_i)."""
-    unit = {k: [params[f"{k}_{i + 1}"] for i in range(n_units)] for k in ("mu", "K", "Jm", "eta")}
-    stack = {k: (jnp.stack([jnp.asarray(x, dtype=float) for x in v]) if v else ()) for k, v in unit.items()}
-    return Material(params["mu_inf"], params["K_inf"], params["Jm_inf"], params["eps"], params["rho"], **stack)
 
 
 def _check_ok(sol, pred):
@@ -86,7 +78,7 @@ class UniaxialForward(_Hashable):
         self.tol, self.max_iter, self.reuse = float(tol), int(max_iter), bool(reuse)
 
     def problem(self, params, data):
-        mat = material_from(params, self.n_units)
+        mat = parameters.from_flat(params, self.n_units)
         volt = Interp(data["volt_t"], data["volt_v"]) if self.voltage else None
         p = scenarios.uniaxial(Interp(data["knots_t"], data["knots_lam"]), mat, voltage=volt, lz=self.lz,
                                damping=params.get("c_d", 0.0))
@@ -110,7 +102,7 @@ class BlockForward(_Hashable):
         self.n_units, self.L, self.output, self.rho_inf = int(n_units), float(L), output, float(rho_inf)
 
     def simulate(self, params, data):
-        mat = material_from(params, self.n_units)
+        mat = parameters.from_flat(params, self.n_units)
         p = scenarios.block(L=self.L, material=mat, voltage=Interp(data["volt_t"], data["volt_v"]),
                             damping=params.get("c_d", 0.0))
         return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
@@ -130,7 +122,7 @@ class RolledForward(_Hashable):
         self.shape, self.rho_inf, self.output = tuple(int(s) for s in shape), float(rho_inf), output
 
     def simulate(self, params, data):
-        mat = material_from(params, self.n_units)
+        mat = parameters.from_flat(params, self.n_units)
         p = scenarios.rolled(mat, h=self.h, r=self.r, L=self.L, shape=self.shape,
                              voltage=Interp(data["volt_t"], data["volt_v"]), damping=params.get("c_d", 0.0))
         return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
@@ -192,11 +184,11 @@ def hossain_target(peak: float, rate: float, n_steps: int, max_points=None) -> T
 
 def from_experiment(exp, n_steps: int | None = None, max_points: int | None = None):
     """(forward, params0, free, bounds, targets, holdout, options) for a fitting.data.Experiment."""
-    params0 = {k: v for k, v in exp.parameters().items() if PARAM_PATTERN.match(k)}
+    params0 = {k: v for k, v in exp.parameters().items() if parameters.PATTERN.match(k)}
     params0["c_d"] = float(exp.solver.get("damping", 0.0))
     free = list(exp.fit.free)
     for k in free:
-        if not PARAM_PATTERN.match(k):
+        if not parameters.PATTERN.match(k):
             raise ValueError(f"free parameter {k!r} is not supported by dejax fit (material parameters and c_d only)")
     if "c_d" in free and params0["c_d"] <= 0:
         params0["c_d"] = 1.0

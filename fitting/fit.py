@@ -51,61 +51,19 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-__all__ = ["Target", "FitResult", "fit", "apply_params", "material_with", "LogBox", "PARAM_PATTERN"]
+from dejax import parameters
 
-PARAM_PATTERN = re.compile(r"^(mu_inf|K_inf|Jm_inf|eps|rho|c_d|(mu|K|Jm|eta)_(\d+))$")
+__all__ = ["Target", "FitResult", "fit", "apply_params", "LogBox"]
 
 
 # ----------------------------------------------------------------------------- parameters
 
-
-def material_with(material, params: Mapping[str, Any]):
-    """A copy of ``material`` (dejax Material) with the named parameters replaced."""
-    m = material
-    for name, v in params.items():
-        g = PARAM_PATTERN.match(name)
-        if not g:
-            raise KeyError(f"unknown parameter {name!r} (expected mu_inf, K_inf, Jm_inf, eps, rho, c_d, mu_i, K_i, Jm_i, eta_i)")
-        if name == "c_d":
-            continue
-        if g.group(2):
-            key, i = g.group(2), int(g.group(3)) - 1
-            n = getattr(m, key).shape[0]
-            if not 0 <= i < n:
-                raise KeyError(f"parameter {name!r}: the material has {n} viscous unit(s)")
-            m = eqx.tree_at(lambda mm: getattr(mm, key), m, getattr(m, key).at[i].set(jnp.asarray(v, dtype=float)))
-        else:
-            m = eqx.tree_at(lambda mm: getattr(mm, name), m, jnp.asarray(v, dtype=float))
-    return m
-
-
 def apply_params(model, params: Mapping[str, Any]):
     """``model`` with material parameters and damping ``c_d`` replaced (same structure)."""
-    model = eqx.tree_at(lambda m: m.material, model, material_with(model.material, params))
+    model = eqx.tree_at(lambda m: m.material, model, parameters.replace(model.material, params))
     if "c_d" in params:
         model = eqx.tree_at(lambda m: m.damping, model, jnp.asarray(params["c_d"], dtype=float))
     return model
-
-
-def param_unit(name: str) -> str:
-    """SI unit of a fit parameter name (mu_inf, mu_1, eta_2, c_d, ...); "1" = dimensionless."""
-    from dejax.results import unit_of
-
-    if name == "c_d":
-        return "1/s"
-    g = PARAM_PATTERN.match(name)
-    return unit_of(g.group(2) if g and g.group(2) else name)
-
-
-def material_params(material, damping=None) -> dict:
-    """All named parameters of a Material (and c_d if given) as floats."""
-    p = {k: float(getattr(material, k)) for k in ("mu_inf", "K_inf", "Jm_inf", "eps", "rho")}
-    for key in ("mu", "K", "Jm", "eta"):
-        for i, v in enumerate(np.asarray(getattr(material, key))):
-            p[f"{key}_{i + 1}"] = float(v)
-    if damping is not None:
-        p["c_d"] = float(damping)
-    return p
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,7 +207,7 @@ class FitResult:
         lines = [f"{'parameter':>10} {'initial':>12} {'fitted':>12} {'std.err':>11} {'rel.err':>8}  unit"]
         for k in self.free:
             lines.append(f"{k:>10} {self.p0[k]:12.5g} {self.params[k]:12.5g} {self.stderr[k]:11.3g} "
-                         f"{100 * self.rel_stderr[k]:7.2f}%  {param_unit(k)}"
+                         f"{100 * self.rel_stderr[k]:7.2f}%  {parameters.unit(k)}"
                          + ("  (at bound)" if k in self.at_bound else ""))
         lines.append(f"loss {self.loss0:.4g} -> {self.loss:.4g} in {self.n_evals} evaluations, {self.seconds:.1f} s")
         lines.append(f"{'trace':>24} {'role':>8} {'RMS':>12} {'RMS/amp':>8}  unit")
@@ -269,7 +227,7 @@ class FitResult:
             stderr=self.stderr, rel_stderr=self.rel_stderr, correlation=np.asarray(self.corr).tolist(),
             cov_log=np.asarray(self.cov_log).tolist(), loss=self.loss, loss0=self.loss0,
             history=[list(h) for h in self.history], rms=self.rms, n_evals=self.n_evals, seconds=self.seconds,
-            at_bound=self.at_bound, units={k: param_unit(k) for k in self.params},
+            at_bound=self.at_bound, units={k: parameters.unit(k) for k in self.params},
         )
 
     def save(self, out_dir, plots: bool = True) -> list[Path]:

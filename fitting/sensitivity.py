@@ -31,9 +31,9 @@ import numpy as np
 
 from dejax import integrate as it
 from dejax import cycles as feat
-from dejax import scenarios
+from dejax import parameters, scenarios
 
-from .fit import PARAM_PATTERN, apply_params, material_params
+from .fit import apply_params
 
 __all__ = ["Setup", "outputs", "sensitivity", "finite_differences", "default_params", "check_names"]
 
@@ -63,14 +63,14 @@ class Setup:
 def default_params(setup: Setup) -> dict:
     """h = r = 2 mm, L = 8 mm and the material of ``setup.model`` (c_d = 0)."""
     p = dict(h=2e-3, L=8e-3, r=2e-3)
-    p.update(material_params(scenarios.rolled_material(setup.model), damping=0.0))
+    p.update(parameters.flat(scenarios.rolled_material(setup.model), damping=0.0))
     return p
 
 
 def check_names(names, params):
     """KeyError naming the first of ``names`` that is no parameter or has no value in ``params``."""
     for k in names:
-        if k not in GEOMETRY and not PARAM_PATTERN.match(k):
+        if k not in GEOMETRY and not parameters.PATTERN.match(k):
             raise KeyError(f"unknown parameter {k!r}: geometry h, L, r or a material parameter "
                            "(mu_inf, K_inf, Jm_inf, eps, rho, mu_i, K_i, Jm_i, eta_i, c_d)")
         if k not in params:

@@ -11,9 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dejax import scenarios
 from fitting import fit as F
-from fitting.experiment import UniaxialForward, material_from, triangle_knots, uniaxial_target
+from fitting.experiment import UniaxialForward, triangle_knots, uniaxial_target
 
 TRUTH = dict(mu_inf=20e3, K_inf=2e7, Jm_inf=60.0, eps=4.7e-11, rho=960.0,
              mu_1=30e3, K_1=3e7, Jm_1=50.0, eta_1=3e3,      # tau_1 = eta/(2 mu) = 0.05 s
@@ -28,19 +27,6 @@ def test_logbox_roundtrip_and_bounds():
     assert np.allclose(np.asarray(box.to_p(jnp.asarray(box.to_theta(p)))), p, rtol=1e-9)
     big = np.asarray(box.to_p(jnp.asarray([50.0, -50.0])))
     assert big[0] <= 100.0 * (1 + 1e-12) and big[1] >= 1e3 * (1 - 1e-12)
-
-
-def test_material_with_replaces_named_leaves():
-    m = scenarios.block_material()
-    m2 = F.material_with(m, {"mu_inf": 1.0, "eta_1": 2.0, "Jm_1": 3.0})
-    assert float(m2.mu_inf) == 1.0 and float(m2.eta[0]) == 2.0 and float(m2.Jm[0]) == 3.0
-    assert float(m2.K_inf) == float(m.K_inf)
-    with pytest.raises(KeyError):
-        F.material_with(m, {"eta_2": 1.0})
-    with pytest.raises(KeyError):
-        F.material_with(m, {"nope": 1.0})
-    mat = material_from(TRUTH, 2)
-    assert mat.n_units == 2 and float(mat.eta[1]) == 2e4
 
 
 def test_fit_rejects_bad_input():
@@ -143,7 +129,6 @@ def test_fit_table_shows_units_of_parameters_and_rms(capsys):
     rms_rows = [line for line in lines if line.split()[:1] in (["slow"], ["fast"])]
     assert len(rms_rows) == 2 and all(r.split()[-1] == "Pa" for r in rms_rows)
     assert res.rms["slow"]["unit"] == "Pa" and res.to_dict()["units"] == {"mu_inf": "Pa"}
-    assert F.param_unit("eta_2") == "Pa s" and F.param_unit("c_d") == "1/s" and F.param_unit("Jm_1") == "1"
 
 
 def test_fit_with_a_failing_trace_names_it(capsys):
