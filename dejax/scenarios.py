@@ -95,25 +95,27 @@ class Problem:
         return stability.classify_failure(self.model, self.loading, sol, control.dt_min if control else dt)
 
 
-class _NodeMean:
-    """Output function: mean of one coordinate over a node set, divided by a length.
+# Output functions are equinox Modules whose fields are all static (node ids, lengths): equal
+# outputs compare and hash equal, so rebuilt problems reuse the compiled stepper.
 
-    A class (not a closure) so that equal outputs hash equal and reuse compiled code."""
+
+def _node_ids(ids) -> tuple:
+    return tuple(int(i) for i in ids)
+
+
+class _NodeMean(eqx.Module):
+    """Output function: mean of one coordinate over a node set, divided by a length."""
+
+    outputs: tuple = eqx.field(static=True)  # ((name, node ids, slot, component, length or None), ...)
 
     def __init__(self, outputs: dict):
-        # outputs: name -> (node ids tuple, slot, component, scale or None)
-        self.outputs = {k: (tuple(int(i) for i in v[0]), *v[1:]) for k, v in outputs.items()}
-
-    def __hash__(self):
-        return hash(tuple(sorted(self.outputs.items(), key=lambda kv: kv[0])))
-
-    def __eq__(self, other):
-        return isinstance(other, _NodeMean) and other.outputs == self.outputs
+        # outputs: name -> (node ids, slot, component, length or None)
+        self.outputs = tuple((k, _node_ids(v[0]), *v[1:]) for k, v in outputs.items())
 
     def __call__(self, model, loading, state):
         q = state.q.reshape(-1, 4, 3)
         res = {}
-        for name, (nodes, slot, comp, length) in self.outputs.items():
+        for name, nodes, slot, comp, length in self.outputs:
             val = jnp.mean(q[jnp.asarray(nodes), slot, comp])
             res[name] = val / length if length else val
         res["voltage"] = loading.phi(state.t)[0] if loading.voltages else jnp.asarray(0.0)
@@ -169,18 +171,11 @@ def block(
     return Problem("block", model, it.Loading(voltages=(history,)), out, params, {"mesh": mesh})
 
 
-class _TubeOutputs:
+class _TubeOutputs(eqx.Module):
     """x_P, v_P (axial displacement and velocity of node P), voltage and nominal field phi/h."""
 
-    def __init__(self, node: int, h: float):
-        self.node = int(node)
-        self.h = float(h)
-
-    def __hash__(self):
-        return hash(("tube", self.node, self.h))
-
-    def __eq__(self, other):
-        return isinstance(other, _TubeOutputs) and (other.node, other.h) == (self.node, self.h)
+    node: int = eqx.field(static=True, converter=int)
+    h: float = eqx.field(static=True, converter=float)
 
     def __call__(self, model, loading, state):
         i = 12 * self.node
@@ -238,18 +233,11 @@ def rolled(
                    {"mesh": mesh, "P": int(nodes[0])})
 
 
-class _TwistOutputs:
+class _TwistOutputs(eqx.Module):
     """twist_angle: least-squares rotation (rad) about x of the x = L face's nodes relative to
     their reference positions (positive counter-clockwise seen from +x); voltage."""
 
-    def __init__(self, nodes):
-        self.nodes = tuple(int(i) for i in nodes)
-
-    def __hash__(self):
-        return hash(("twist", self.nodes))
-
-    def __eq__(self, other):
-        return isinstance(other, _TwistOutputs) and other.nodes == self.nodes
+    nodes: tuple = eqx.field(static=True, converter=_node_ids)
 
     def __call__(self, model, loading, state):
         idx = 12 * jnp.asarray(self.nodes)
@@ -322,23 +310,15 @@ def torsional(
                    {"mesh": mesh, "phibar_scale": scale})
 
 
-class _UniaxialOutputs:
+class _UniaxialOutputs(eqx.Module):
     """stretch (-), nominal stress P11 (Pa) = axial reaction on the moving face / (ly lz),
     voltage (V) and thickness stretch (-)."""
 
-    def __init__(self, face, top, lx, area, lz):
-        self.face = tuple(int(i) for i in face)
-        self.top = tuple(int(i) for i in top)
-        self.lx, self.area, self.lz = float(lx), float(area), float(lz)
-
-    def _key(self):
-        return (self.face, self.top, self.lx, self.area, self.lz)
-
-    def __hash__(self):
-        return hash(("uniaxial",) + self._key())
-
-    def __eq__(self, other):
-        return isinstance(other, _UniaxialOutputs) and other._key() == self._key()
+    face: tuple = eqx.field(static=True, converter=_node_ids)
+    top: tuple = eqx.field(static=True, converter=_node_ids)
+    lx: float = eqx.field(static=True, converter=float)
+    area: float = eqx.field(static=True, converter=float)
+    lz: float = eqx.field(static=True, converter=float)
 
     def __call__(self, model, loading, state):
         phi = loading.phi(state.t) if loading.voltages else jnp.zeros(model.field_dirs.shape[0])

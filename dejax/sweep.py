@@ -32,18 +32,11 @@ from . import scenarios
 SWEEPABLE = ("h", "r", "L", "freq", "phi_max")
 
 
-class SweepOutputs:
+class SweepOutputs(eqx.Module):
     """x_P (m), voltage (V), field = voltage x |Grad unit potential| (V/m, traced, not static:
     cases with different h share the compiled code)."""
 
-    def __init__(self, node: int):
-        self.node = int(node)
-
-    def __hash__(self):
-        return hash(("sweep-tube", self.node))
-
-    def __eq__(self, other):
-        return isinstance(other, SweepOutputs) and other.node == self.node
+    node: int = eqx.field(static=True, converter=int)
 
     def __call__(self, model, loading, state):
         i = 12 * self.node

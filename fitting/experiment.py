@@ -43,17 +43,6 @@ def _check_ok(sol, pred):
     return jnp.where(sol.status == 0, pred, jnp.nan)
 
 
-class _Hashable:
-    def _key(self):
-        return tuple(sorted(self.__dict__.items()))
-
-    def __hash__(self):
-        return hash((type(self).__name__,) + self._key())
-
-    def __eq__(self, other):
-        return type(other) is type(self) and other._key() == self._key()
-
-
 CHANNEL_UNITS = {"stretch": "1", "displacement": "m", "stress": "Pa"}
 """SI units of the response channels a fit compares (after the trace's unit conversion)."""
 
@@ -63,7 +52,11 @@ with cut-back replays its sub-steps (a second forward pass and a second compiled
 program), which fits, with hundreds of gradient evaluations, cannot afford yet."""
 
 
-class UniaxialForward(_Hashable):
+# The forwards are equinox Modules with static fields only: equal configurations compare and
+# hash equal, so fit's compiled functions are reused (fit caches them per forward).
+
+
+class UniaxialForward(eqx.Module):
     """Stress (Pa) of a stretch-controlled uniaxial test at the observation times.
 
     n_units: viscous units; lz: thickness (m) when a voltage acts across it;
@@ -72,10 +65,13 @@ class UniaxialForward(_Hashable):
     residual ``tol``, up to 40 iterations.
     """
 
-    def __init__(self, n_units: int, voltage: bool = False, lz: float = 1e-3, output: str = "stress",
-                 tol: float = 1e-9, max_iter: int = 40, reuse: bool = False):
-        self.n_units, self.voltage, self.lz, self.output = int(n_units), bool(voltage), float(lz), output
-        self.tol, self.max_iter, self.reuse = float(tol), int(max_iter), bool(reuse)
+    n_units: int = eqx.field(static=True, converter=int)
+    voltage: bool = eqx.field(static=True, default=False, converter=bool)
+    lz: float = eqx.field(static=True, default=1e-3, converter=float)
+    output: str = eqx.field(static=True, default="stress")
+    tol: float = eqx.field(static=True, default=1e-9, converter=float)
+    max_iter: int = eqx.field(static=True, default=40, converter=int)
+    reuse: bool = eqx.field(static=True, default=False, converter=bool)
 
     def problem(self, params, data):
         mat = parameters.from_flat(params, self.n_units)
@@ -95,11 +91,13 @@ class UniaxialForward(_Hashable):
         return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
-class BlockForward(_Hashable):
+class BlockForward(eqx.Module):
     """An output of the DE block (default lateral_stretch) under a voltage history."""
 
-    def __init__(self, n_units: int, L: float = 1e-3, output: str = "lateral_stretch", rho_inf: float = 0.8):
-        self.n_units, self.L, self.output, self.rho_inf = int(n_units), float(L), output, float(rho_inf)
+    n_units: int = eqx.field(static=True, converter=int)
+    L: float = eqx.field(static=True, default=1e-3, converter=float)
+    output: str = eqx.field(static=True, default="lateral_stretch")
+    rho_inf: float = eqx.field(static=True, default=0.8, converter=float)
 
     def simulate(self, params, data):
         mat = parameters.from_flat(params, self.n_units)
@@ -113,13 +111,16 @@ class BlockForward(_Hashable):
         return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
-class RolledForward(_Hashable):
+class RolledForward(eqx.Module):
     """Axial displacement x_P (m) of the rolled tube under a voltage history."""
 
-    def __init__(self, n_units: int, h: float, r: float, L: float, shape=(1, 4, 1), rho_inf: float = 0.8,
-                 output: str = "x_P"):
-        self.n_units, self.h, self.r, self.L = int(n_units), float(h), float(r), float(L)
-        self.shape, self.rho_inf, self.output = tuple(int(s) for s in shape), float(rho_inf), output
+    n_units: int = eqx.field(static=True, converter=int)
+    h: float = eqx.field(static=True, converter=float)
+    r: float = eqx.field(static=True, converter=float)
+    L: float = eqx.field(static=True, converter=float)
+    shape: tuple = eqx.field(static=True, default=(1, 4, 1), converter=lambda s: tuple(int(n) for n in s))
+    rho_inf: float = eqx.field(static=True, default=0.8, converter=float)
+    output: str = eqx.field(static=True, default="x_P")
 
     def simulate(self, params, data):
         mat = parameters.from_flat(params, self.n_units)

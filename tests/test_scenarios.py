@@ -13,6 +13,7 @@ strip on the paper's mesh are marked ``slow`` (``pytest --runslow``).
 import json
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -101,12 +102,7 @@ def test_zero_voltage_tube_stays_at_rest():
 # ----------------------------------------------------------------------------- (c) thin tube
 
 
-class _VoltageOnly:
-    def __hash__(self):
-        return hash("voltage-only")
-
-    def __eq__(self, other):
-        return isinstance(other, _VoltageOnly)
+class _VoltageOnly(eqx.Module):
 
     def __call__(self, model, loading, state):
         return {"voltage": loading.phi(state.t)[0]}
