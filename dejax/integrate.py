@@ -43,7 +43,7 @@ import numpy as np
 
 from . import model as mdl
 from .linsolve import DenseSolver
-from .material import bulk_modulus, det3
+from .material import FlowStep, bulk_modulus, det3
 from .model import Model
 
 
@@ -88,17 +88,30 @@ class SimulationError(RuntimeError):
         super().__init__(msg + (f"; {detail}" if detail else ""))
 
 
+FLOW_UPDATES = ("bdf2", "backward-euler")
+
+
+def _check_flow_update(name: str) -> None:
+    if name not in FLOW_UPDATES:
+        raise ValueError(f"flow_update must be one of {FLOW_UPDATES}, got {name!r}")
+
+
 @dataclasses.dataclass(frozen=True)
 class GeneralizedAlpha:
-    """Generalized-alpha parameters from the spectral radius at infinity (Eqs. 31-32)."""
+    """Generalized-alpha parameters from the spectral radius at infinity (Eqs. 31-32).
+
+    flow_update: time discretization of the viscous flow rule, "bdf2" (second order, the
+    default) or "backward-euler" (the paper's Eq. 39, first order)."""
 
     rho_inf: float = 0.8
+    flow_update: str = "bdf2"
 
     inertial = True
 
     def __post_init__(self):
         if not 0.0 <= self.rho_inf <= 1.0:
             raise ValueError(f"rho_inf must lie in [0, 1], got {self.rho_inf}")
+        _check_flow_update(self.flow_update)
 
     @property
     def alpha_m(self) -> float:
@@ -145,9 +158,14 @@ class QuasiStatic:
     """Quasi-static stepping: no inertia and no damping force; equilibrium at each time.
 
     Velocities are backward differences (q_{n+1} - q_n) / h, accelerations zero; the viscous
-    update stays backward Euler over the step. For material tests and slow ramps."""
+    update as ``GeneralizedAlpha.flow_update``. For material tests and slow ramps."""
+
+    flow_update: str = "bdf2"
 
     inertial = False
+
+    def __post_init__(self):
+        _check_flow_update(self.flow_update)
 
     def kinematics(self, s: "State", h, q):
         zero = jnp.zeros_like(q)
@@ -242,7 +260,9 @@ class Loading(eqx.Module):
 
 class State(eqx.Module):
     """Time-stepping state: t (s), q, v, qdd, a (n_dofs,), Cv (n_el, n_gp, n_units, 3, 3),
-    p (n_el, n_p) element pressure unknowns (Pa; mixed form, None = 0)."""
+    p (n_el, n_p) element pressure unknowns (Pa; mixed form, None = 0); Cv_prev and h_prev
+    (s): the viscous state one step back and that step's size (h_prev = 0: no history), for
+    the BDF2 flow-rule update (None: backward Euler)."""
 
     t: jax.Array
     q: jax.Array
@@ -251,6 +271,8 @@ class State(eqx.Module):
     a: jax.Array
     Cv: jax.Array
     p: jax.Array | None = None
+    Cv_prev: jax.Array | None = None
+    h_prev: jax.Array | None = None
 
 
 def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0, q=None, v=None) -> State:
@@ -271,7 +293,8 @@ def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0,
     else:  # large: start from rest (rhs is zero at a reference state without load)
         qdd_f = jnp.zeros(model.structure.n_free)
     qdd = mdl.expand(model, qdd_f)
-    return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv, p=p)
+    return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv, p=p, Cv_prev=Cv,
+                 h_prev=jnp.asarray(0.0))
 
 
 # ----------------------------------------------------------------------------- one step
@@ -285,6 +308,7 @@ class _StepContext(eqx.Module):
     phi1: jax.Array
     u1: jax.Array
     f_ext: jax.Array
+    flow: FlowStep | None = None
 
 
 def _step_terms(model: Model, scheme, ctx: _StepContext, z):
@@ -298,11 +322,16 @@ def _step_terms(model: Model, scheme, ctx: _StepContext, z):
     return q, E, h, mdl.mass_apply(model, qdd1 + model.damping * v1) - ctx.f_ext
 
 
+def _flow(ctx: _StepContext):
+    """The flow-rule step data of the step (backward Euler from the state's Cv without it)."""
+    return ctx.state.Cv if ctx.flow is None else ctx.flow
+
+
 def _residual(model: Model, scheme, ctx: _StepContext, z, p):
     """Eq. (28) at q_{n+1}(z), p: reduced forces (n_free,), element volume residuals
     (n_el, n_p; empty in the displacement form) and the updated Cv."""
     q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
-    fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.state.Cv, h, p)
+    fe, g, Cv1 = mdl.element_forces(model, q, E, _flow(ctx), h, p)
     g = jnp.zeros_like(p) if g is None else g
     return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g, Cv1
 
@@ -310,7 +339,7 @@ def _residual(model: Model, scheme, ctx: _StepContext, z, p):
 def _system(model: Model, scheme, ctx: _StepContext, z, p):
     """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
     q, E, h, _ = _step_terms(model, scheme, ctx, z)
-    sys = mdl.element_system(model, q, E, ctx.state.Cv, h, p)
+    sys = mdl.element_system(model, q, E, _flow(ctx), h, p)
     bp, gp = scheme.matrix_coefficients(h)
     if scheme.inertial:
         sys = eqx.tree_at(lambda s: s.Ke, sys, sys.Ke + (bp + gp * model.damping) * mdl.mass_elements(model))
@@ -536,13 +565,15 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
             phi1=loading.phi(t1) if model.field_dirs.shape[0] else jnp.zeros(0),
             u1=loading.u(t1) if model.prescribed_dirs.shape[0] else jnp.zeros(0),
             f_ext=mdl.gravity_force(model),
+            flow=mdl.flow_step(model, state, h, scheme.flow_update),
         )
         q_pred = scheme.predict(state, h, opts.predictor)
         p0 = mdl.initial_pressure(model) if state.p is None else state.p
         z, p1, it, nfac, conv, fac, Cv1 = newton(model, ctx, q_pred[s.free], p0, fac, valid)
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = scheme.kinematics(state, h, q1)
-        new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1, p=p1)
+        new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1, p=p1,
+                    Cv_prev=None if state.Cv_prev is None else state.Cv, h_prev=None if state.h_prev is None else h)
         F = mdl.deformation_gradients(model, q1)
         finite = jnp.all(jnp.isfinite(q1)) & jnp.all(jnp.isfinite(Cv1)) & jnp.all(jnp.isfinite(p1))
         inverted = jnp.any(jax.vmap(jax.vmap(det3))(F) <= 0)

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import element as el
 from .constraints import Constraints
-from .material import (Material, bulk_modulus, free_energy, min_gent_margin, mixed_free_energy, mixed_stress_and_update,
+from .material import (Material, backward_euler_flow_step, bdf2_flow_step, bulk_modulus, free_energy, min_gent_margin, mixed_free_energy, mixed_stress_and_update,
                        mixed_tangent_and_update, stress_and_update, stress_tangent_and_update)
 from .mesh import Mesh, Static
 
@@ -244,6 +244,17 @@ def initial_viscous_state(model: Model) -> jax.Array:
     """(n_el, n_gp, n_units, 3, 3) Cv = I (material at rest)."""
     n_el, n_gp = model.dV.shape
     return jnp.broadcast_to(jnp.eye(3), (n_el, n_gp, model.material.n_units, 3, 3))
+
+
+def flow_step(model: Model, state, h, method: str = "bdf2"):
+    """Per-point FlowStep of the step of size h (s) from ``state`` (an integrate.State).
+
+    "bdf2" with the state's history (Cv_prev, h_prev) where it has one, else backward
+    Euler (Eq. 39). Leaves (n_el, n_gp, n_units, ...)."""
+    if method == "bdf2" and state.Cv_prev is not None and state.h_prev is not None:
+        fn = lambda Cv, Cv_prev: bdf2_flow_step(Cv, Cv_prev, h, state.h_prev)
+        return jax.vmap(jax.vmap(fn))(state.Cv, state.Cv_prev)
+    return jax.vmap(jax.vmap(lambda Cv: backward_euler_flow_step(Cv, h)))(state.Cv)
 
 
 def _per_point(fn):
