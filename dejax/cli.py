@@ -94,6 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--eta", type=positive("--eta"), default=None,
                    help="override eta_1 (Pa s; default: the paper's 3000)")
     _common_solver_args(b, dt=1e-3)
+    b.set_defaults(run_scenario=_run_block)
 
     r = rsub.add_parser("rolled", help="rolled (tubular) DEA under the Eq. (42) sine voltage (paper Sec. 6)")
     r.add_argument("--model", default="IV", choices=("I", "II", "III", "IV", "hyperelastic"), help="Table 2 material")
@@ -112,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override the viscous eta_s, comma-separated (Pa s; default: the --model's)")
     r.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
     _common_solver_args(r, dt=1e-4)
+    r.set_defaults(run_scenario=_run_rolled)
 
     t = rsub.add_parser("torsional", help="twisted torsional strip, phibar ramp (paper Sec. 5)")
     t.add_argument("--phibar-max", type=nonneg("--phibar-max"), default=0.5, help="final dimensionless voltage")
@@ -121,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--mesh", type=mesh_shape, default=(48, 8, 2), help="length x width x thickness elements")
     t.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
     _common_solver_args(t, dt=1e-2)
+    t.set_defaults(run_scenario=_run_torsional)
 
     v = sub.add_parser("verify", help="run the verification cases against independent references")
     v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
@@ -302,56 +305,58 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     return 0
 
 
-def _cmd_run(args):
-    if args.scenario == "block":
-        from . import scenarios
+def _run_block(args):
+    from . import scenarios
 
-        over = {}
-        if args.mu_inf is not None:
-            over["mu_inf"] = args.mu_inf
-        if args.eta is not None:
-            over["eta"] = [args.eta]
-        if args.hyperelastic:
-            over.update(mu=[], K=[], Jm=[], eta=[])
-        material = scenarios.block_material(**over)
-        problem = scenarios.block(
-            phi_max=args.phi_max,
-            L=args.L,
-            shape=args.mesh,
-            material=material,
-            t_ramp=args.t_ramp,
-            gauss_order=args.gauss or 3,
-            damping=args.damping,
-            volumetric=args.volumetric,
-        )
-        return _run_problem(problem, args.t_end, args.dt, args, ["lateral_stretch"])
-    if args.scenario == "rolled":
-        from . import scenarios
+    over = {}
+    if args.mu_inf is not None:
+        over["mu_inf"] = args.mu_inf
+    if args.eta is not None:
+        over["eta"] = [args.eta]
+    if args.hyperelastic:
+        over.update(mu=[], K=[], Jm=[], eta=[])
+    material = scenarios.block_material(**over)
+    problem = scenarios.block(
+        phi_max=args.phi_max,
+        L=args.L,
+        shape=args.mesh,
+        material=material,
+        t_ramp=args.t_ramp,
+        gauss_order=args.gauss or 3,
+        damping=args.damping,
+        volumetric=args.volumetric,
+    )
+    return _run_problem(problem, args.t_end, args.dt, args, ["lateral_stretch"])
 
-        over = {}
-        if args.mu_inf is not None:
-            over["mu_inf"] = args.mu_inf
-        if args.mu is not None:
-            over["mu"] = _floats(args.mu, "--mu")
-        if args.eta is not None:
-            over["eta"] = _floats(args.eta, "--eta")
-        n = len(over.get("mu", scenarios.TABLE2[args.model][1]))
-        if "mu" in over or "eta" in over:
-            over.setdefault("K", [7.5e9] * n)
-            over.setdefault("Jm", [5.0] * n)
-        material = scenarios.rolled_material(args.model, **over)
-        problem = scenarios.rolled(material, args.freq, args.phi_max, h=args.h, r=args.r, L=args.L, shape=args.mesh,
-                                   gauss_order=args.gauss or 3, damping=args.damping, point=args.point,
-                                   volumetric=args.volumetric)
-        problem.params["model"] = args.model
-        return _run_problem(problem, args.cycles / args.freq, args.dt, args, ["x_P"], args.solver)
-    if args.scenario == "torsional":
-        from . import scenarios
 
-        problem = scenarios.torsional(args.phibar_max, args.t_ramp, viscous=args.viscous, shape=args.mesh,
-                                      gauss_order=args.gauss or 3, damping=args.damping, volumetric=args.volumetric)
-        return _run_problem(problem, args.t_end or args.t_ramp, args.dt, args, ["twist_angle"], args.solver)
-    raise AssertionError(args.scenario)
+def _run_rolled(args):
+    from . import scenarios
+
+    over = {}
+    if args.mu_inf is not None:
+        over["mu_inf"] = args.mu_inf
+    if args.mu is not None:
+        over["mu"] = _floats(args.mu, "--mu")
+    if args.eta is not None:
+        over["eta"] = _floats(args.eta, "--eta")
+    n = len(over.get("mu", scenarios.TABLE2[args.model][1]))
+    if "mu" in over or "eta" in over:
+        over.setdefault("K", [7.5e9] * n)
+        over.setdefault("Jm", [5.0] * n)
+    material = scenarios.rolled_material(args.model, **over)
+    problem = scenarios.rolled(material, args.freq, args.phi_max, h=args.h, r=args.r, L=args.L, shape=args.mesh,
+                               gauss_order=args.gauss or 3, damping=args.damping, point=args.point,
+                               volumetric=args.volumetric)
+    problem.params["model"] = args.model
+    return _run_problem(problem, args.cycles / args.freq, args.dt, args, ["x_P"], args.solver)
+
+
+def _run_torsional(args):
+    from . import scenarios
+
+    problem = scenarios.torsional(args.phibar_max, args.t_ramp, viscous=args.viscous, shape=args.mesh,
+                                  gauss_order=args.gauss or 3, damping=args.damping, volumetric=args.volumetric)
+    return _run_problem(problem, args.t_end or args.t_ramp, args.dt, args, ["twist_angle"], args.solver)
 
 
 def _cmd_verify(args):
@@ -513,7 +518,7 @@ def main(argv=None) -> int:
         compile_cache.enable()
     try:
         if args.command == "run":
-            return _cmd_run(args)
+            return args.run_scenario(args)
         if args.command == "verify":
             return _cmd_verify(args)
         if hasattr(args, "func"):

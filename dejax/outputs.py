@@ -201,19 +201,15 @@ def _param(attrs, key, default=None):
 
 
 def mesh_from_attrs(attrs: dict):
-    """Rebuild the reference mesh of a results file from its scenario parameters."""
-    from .mesh import block_mesh, rolled_tube_mesh, twisted_strip_mesh
+    """Rebuild the reference mesh of a results file from its scenario parameters
+    (``scenarios.REGISTRY[name].mesh``)."""
+    from . import scenarios
 
     scen = attrs.get("scenario")
-    shape = tuple(int(s) for s in np.asarray(_param(attrs, "mesh")).ravel())
-    if scen == "rolled":
-        return rolled_tube_mesh(float(attrs["h"]), float(attrs["r"]), float(attrs["L"]), shape=shape)
-    if scen == "torsional":
-        return twisted_strip_mesh(float(attrs["length"]), float(attrs["width"]), float(attrs["thickness"]),
-                                  float(attrs.get("turns", 1.0)), shape=shape)
-    if scen == "block":
-        return block_mesh(float(attrs["L"]), shape=shape)
-    raise ValueError(f"cannot rebuild the mesh of scenario {scen!r} from the results file")
+    entry = scenarios.REGISTRY.get(scen)
+    if entry is None or entry.mesh is None:
+        raise ValueError(f"cannot rebuild the mesh of scenario {scen!r} from the results file")
+    return entry.mesh(dict(attrs, mesh=_param(attrs, "mesh")))
 
 
 def vtu_from_h5(h5_path, out_dir) -> list[Path]:

@@ -378,3 +378,51 @@ class _MinusOne(eqx.Module):
 
     def __call__(self, t):
         return self.stretch(t) - 1.0
+
+
+# ----------------------------------------------------------------------------- registry
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """A scenario of the registry: ``build(**params) -> Problem`` and, where a results file's
+    parameters (``Problem.params``, HDF5 attributes) determine it, ``mesh(params) -> Mesh``."""
+
+    name: str
+    build: Callable
+    mesh: Callable | None = None
+
+
+def _mesh_shape(params) -> tuple:
+    return tuple(int(s) for s in np.asarray(params["mesh"]).ravel())
+
+
+def _block_mesh(params):
+    return block_mesh(float(params["L"]), shape=_mesh_shape(params))
+
+
+def _rolled_mesh(params):
+    from .mesh import rolled_tube_mesh
+
+    return rolled_tube_mesh(float(params["h"]), float(params["r"]), float(params["L"]), shape=_mesh_shape(params))
+
+
+def _torsional_mesh(params):
+    from .mesh import twisted_strip_mesh
+
+    return twisted_strip_mesh(float(params["length"]), float(params["width"]), float(params["thickness"]),
+                              float(params.get("turns", 1.0)), shape=_mesh_shape(params))
+
+
+REGISTRY = {s.name: s for s in (Scenario("block", block, _block_mesh), Scenario("rolled", rolled, _rolled_mesh),
+                                Scenario("torsional", torsional, _torsional_mesh), Scenario("uniaxial", uniaxial))}
+"""Scenario name -> Scenario: the one list of scenarios (experiment files, results files, CLI)."""
+NAMES = tuple(REGISTRY)
+"""The scenario names, in order."""
+
+
+def get(name: str) -> Scenario:
+    """The registered scenario ``name``; ValueError listing the known ones otherwise."""
+    if name not in REGISTRY:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(NAMES)}")
+    return REGISTRY[name]

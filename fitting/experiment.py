@@ -194,46 +194,50 @@ def from_experiment(exp, n_steps: int | None = None, max_points: int | None = No
     if "c_d" in free and params0["c_d"] <= 0:
         params0["c_d"] = 1.0
     bounds = {k: tuple(v) for k, v in exp.fit.bounds.items()}
-    n = exp.n_units
     opts = dict(exp.fit.options)
-    sc = exp.scenario
-    g = exp.geometry
-    dt = exp.solver.get("dt")
-
-    def steps_for(T, default):
-        if n_steps is not None:
-            return int(n_steps)
-        return int(np.ceil(T / dt)) if dt else default
-
-    targets, holdout = [], []
-    Ts = [float(tr.time[-1]) for tr in exp.traces if tr.time is not None]
-    if len(Ts) != len(exp.traces):
+    if any(tr.time is None for tr in exp.traces):
         raise ValueError("every trace needs a time column for dejax fit")
-    if sc == "uniaxial":
-        fwd = UniaxialForward(n, voltage=any(tr.voltage() is not None for tr in exp.traces), lz=float(g.get("h", 1e-3)))
-        for tr in exp.traces:
-            lam = tr["stretch"]
-            dl = np.sum(np.abs(np.diff(lam)))
-            N = int(n_steps) if n_steps is not None else max(int(np.ceil(dl / 2.5e-3)), 50)
-            v = tr.voltage()
-            if fwd.voltage and v is None:
-                v = np.zeros_like(tr.time)
-            tg = uniaxial_target(tr.name, tr.time, lam, tr["stress"], N, voltage=v if fwd.voltage else None,
-                                 max_points=max_points, weight=tr.weight)
-            (targets if tr.role == "fit" else holdout).append(tg)
-        # one compiled simulation for all traces: same number of steps
-        N = max(int(t.data["times"].shape[0]) - 1 for t in targets + holdout)
-        for t in targets + holdout:
-            t.data["times"] = jnp.linspace(0.0, float(t.data["times"][-1]), N + 1)
-    elif sc in ("block", "rolled"):
-        if sc == "block":
-            fwd = BlockForward(n, L=float(g.get("L", g.get("lx", 1e-3))), rho_inf=float(exp.solver.get("rho_inf", 0.8)))
-            channel = "stretch"
-        else:
-            mesh = tuple(g.get("mesh", (1, 4, 1)))
-            fwd = RolledForward(n, g["h"], g["r"], g["L"], shape=mesh, rho_inf=float(exp.solver.get("rho_inf", 0.8)))
-            channel = "displacement"
-        N = max(steps_for(T, 200) for T in Ts)
+    if exp.scenario not in FIT_TARGETS:
+        raise ValueError(f"dejax fit: scenario {exp.scenario!r} is not supported (uniaxial, block, rolled)")
+    fwd, pairs = FIT_TARGETS[exp.scenario](exp, n_steps, max_points)
+    targets = [tg for tr, tg in pairs if tr.role == "fit"]
+    holdout = [tg for tr, tg in pairs if tr.role != "fit"]
+    if not targets:
+        raise ValueError("the experiment has no trace with role = 'fit'")
+    return fwd, params0, free, bounds, targets, holdout, opts
+
+
+def _uniaxial_targets(exp, n_steps, max_points):
+    """UniaxialForward and (trace, Target) pairs of a uniaxial experiment: the stress at the
+    measured times, one number of steps for every trace (one compiled simulation)."""
+    fwd = UniaxialForward(exp.n_units, voltage=any(tr.voltage() is not None for tr in exp.traces),
+                          lz=float(exp.geometry.get("h", 1e-3)))
+    pairs = []
+    for tr in exp.traces:
+        lam = tr["stretch"]
+        dl = np.sum(np.abs(np.diff(lam)))
+        N = int(n_steps) if n_steps is not None else max(int(np.ceil(dl / 2.5e-3)), 50)
+        v = tr.voltage()
+        if fwd.voltage and v is None:
+            v = np.zeros_like(tr.time)
+        pairs.append((tr, uniaxial_target(tr.name, tr.time, lam, tr["stress"], N, voltage=v if fwd.voltage else None,
+                                          max_points=max_points, weight=tr.weight)))
+    N = max(int(tg.data["times"].shape[0]) - 1 for _, tg in pairs)
+    for _, tg in pairs:
+        tg.data["times"] = jnp.linspace(0.0, float(tg.data["times"][-1]), N + 1)
+    return fwd, pairs
+
+
+def _driven_targets(fwd, channel):
+    """(trace, Target) pairs builder of a voltage-driven scenario: ``channel`` of each trace
+    at its samples, the simulation on one number of steps for every trace (from [solver] dt,
+    else 200)."""
+
+    def build(exp, n_steps, max_points):
+        dt = exp.solver.get("dt")
+        Ts = [float(tr.time[-1]) for tr in exp.traces]
+        N = int(n_steps) if n_steps is not None else max(int(np.ceil(T / dt)) if dt else 200 for T in Ts)
+        pairs = []
         for tr in exp.traces:
             y = tr[channel]
             v = tr.voltage()
@@ -242,15 +246,32 @@ def from_experiment(exp, n_steps: int | None = None, max_points: int | None = No
             idx = _subsample(y.size, max_points)
             data = dict(times=jnp.linspace(0.0, float(tr.time[-1]), N + 1), volt_t=jnp.asarray(tr.time),
                         volt_v=jnp.asarray(v), t_obs=jnp.asarray(tr.time[idx]))
-            tg = Target(tr.name, y[idx], data, t=tr.time[idx], x=np.asarray(v)[idx], weight=tr.weight,
-                        ylabel=f"{channel} ({CHANNEL_UNITS[channel].replace('1', '-')})", xlabel="voltage (V)",
-                        unit=CHANNEL_UNITS[channel])
-            (targets if tr.role == "fit" else holdout).append(tg)
-    else:
-        raise ValueError(f"dejax fit: scenario {sc!r} is not supported (uniaxial, block, rolled)")
-    if not targets:
-        raise ValueError("the experiment has no trace with role = 'fit'")
-    return fwd, params0, free, bounds, targets, holdout, opts
+            pairs.append((tr, Target(tr.name, y[idx], data, t=tr.time[idx], x=np.asarray(v)[idx], weight=tr.weight,
+                                     ylabel=f"{channel} ({CHANNEL_UNITS[channel].replace('1', '-')})",
+                                     xlabel="voltage (V)", unit=CHANNEL_UNITS[channel])))
+        return fwd(exp), pairs
+
+    return build
+
+
+def _block_forward(exp):
+    g = exp.geometry
+    return BlockForward(exp.n_units, L=float(g.get("L", g.get("lx", 1e-3))), rho_inf=float(exp.solver.get("rho_inf", 0.8)))
+
+
+def _rolled_forward(exp):
+    g = exp.geometry
+    return RolledForward(exp.n_units, g["h"], g["r"], g["L"], shape=tuple(g.get("mesh", (1, 4, 1))),
+                         rho_inf=float(exp.solver.get("rho_inf", 0.8)))
+
+
+FIT_TARGETS = {
+    "uniaxial": _uniaxial_targets,
+    "block": _driven_targets(_block_forward, "stretch"),
+    "rolled": _driven_targets(_rolled_forward, "displacement"),
+}
+"""Scenario name -> ``(exp, n_steps, max_points) -> (forward, [(trace, Target)])``: the
+scenarios ``dejax fit`` supports."""
 
 
 def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=None, max_points=None,

@@ -240,3 +240,23 @@ def test_torsional_paper_mesh_matches_felupe_and_viscous_unit_stiffens():
     assert 0.8 * hyper[-1] < slow[-1] < 0.99 * hyper[-1]
     assert np.all(np.diff(slow) > 0) and np.all(np.diff(fast) > 0)
     assert 0 < fast[-1] < 0.3 * hyper[-1]
+
+
+# ----------------------------------------------------------------------------- registry
+
+
+def test_registry_builds_every_scenario_and_rebuilds_its_mesh_from_the_parameters():
+    assert scenarios.NAMES == ("block", "rolled", "torsional", "uniaxial")
+    kwargs = {"block": {}, "rolled": dict(shape=(1, 4, 1)), "torsional": dict(shape=(4, 2, 2)),
+              "uniaxial": dict(stretch=loads.Constant(1.0), material=scenarios.block_material())}
+    for name in scenarios.NAMES:
+        entry = scenarios.get(name)
+        p = entry.build(**kwargs[name])
+        assert p.name == name == p.params["scenario"]
+        # equal outputs of rebuilt problems compare and hash equal (one compiled stepper)
+        q = entry.build(**kwargs[name])
+        assert p.output_fn == q.output_fn and hash(p.output_fn) == hash(q.output_fn)
+        if entry.mesh is not None:
+            np.testing.assert_array_equal(np.asarray(entry.mesh(p.params).X), np.asarray(p.extras["mesh"].X))
+    with pytest.raises(ValueError, match="unknown scenario 'tube'; known: block, rolled, torsional, uniaxial"):
+        scenarios.get("tube")
