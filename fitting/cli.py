@@ -26,7 +26,8 @@ from . import diagnose as dg
 from . import effects as fx
 from . import experiment
 from . import sensitivity as S
-from .data import DataError, load_experiment
+from .data import load_experiment
+from .schema import DataError
 
 
 def register(subparsers) -> None:

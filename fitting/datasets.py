@@ -66,7 +66,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .data import DataError
+from .schema import DataError
 
 __all__ = [
     "data_dir",

@@ -310,10 +310,11 @@ def test_readme_example_experiment_builds_for_fit_and_diagnose():
     _, traces = dg.forward_from_experiment(exp)
     assert [t.role for t in traces] == ["fit", "holdout"] and np.ptp(traces[0].y) > 0.01
     doc = (root / "docs/experiment-format.md").read_text()
-    from fitting import data as fd
+    from fitting import schema as fs
+    from fitting.units import CHANNELS
 
-    for key in (*fd.EXPERIMENT_KEYS, *fd.MATERIAL_SCALARS, *fd.UNIT_KEYS, *fd.FIT_KEYS, *fd.SOLVER_KEYS,
-                *fd.TRACE_KEYS, *fd.CHANNELS, *fd.LOADING_KINDS, *sum(fd.GEOMETRY_KEYS.values(), ())):
+    for key in (*fs.EXPERIMENT_KEYS, *fs.MATERIAL_SCALARS, *fs.UNIT_KEYS, *fs.FIT_KEYS, *fs.SOLVER_KEYS,
+                *fs.TRACE_KEYS, *CHANNELS, *fs.LOADING_KINDS, *sum(fs.GEOMETRY_KEYS.values(), ())):
         assert f"`{key}`" in doc, key
 
 

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 import fitting  # noqa: F401
-from fitting.data import DataError, Experiment, Trace, load_experiment, load_trace_csv, loading_voltage
+from fitting.data import Experiment, load_experiment
+from fitting.schema import DataError, loading_voltage
+from fitting.traces import Trace, load_trace_csv
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "data" / "examples" / "tube_example.toml"
@@ -466,3 +468,9 @@ def test_duplicate_trace_names(tmp_path):
     ok = toml.replace('file = "run.csv"\nloading', 'file = "run.csv"\nname = "second"\nrole = "holdout"\nloading')
     exp = load_experiment(write(tmp_path, ok))
     assert [t.name for t in exp.traces] == ["run", "second"] and exp.trace("second").role == "holdout"
+
+
+def test_every_registered_scenario_has_a_geometry_schema():
+    from fitting import schema
+
+    assert set(schema.GEOMETRY_KEYS) == set(schema.SCENARIOS) == set(schema.GEOMETRY_REQUIRED)

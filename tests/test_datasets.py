@@ -9,7 +9,7 @@ import pytest
 
 import fitting  # noqa: F401
 from fitting import datasets
-from fitting.data import DataError
+from fitting.schema import DataError
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 HOSSAIN = DATA / "vhb4910-hossain2012"

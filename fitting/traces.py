@@ -1,0 +1,255 @@
+"""Measured traces: the ``Trace`` record (SI units) and the CSV reader ``load_trace_csv``."""
+from __future__ import annotations
+
+import csv
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .schema import DataError, check_loading, fmt_list, loading_voltage, suggest
+from .units import CHANNELS, SI_UNIT, to_si
+
+__all__ = ["Trace", "load_trace_csv"]
+
+
+@dataclass(frozen=True, eq=False)
+class Trace:
+    """One measured (or simulated) record, in SI units.
+
+    Attributes:
+      time: (n,) time in s, strictly increasing, or None (material tests
+        without a time column).
+      channels: channel name -> (n,) SI array (time excluded), e.g.
+        ``displacement`` (m), ``voltage`` (V), ``stretch`` (-), ``stress`` (Pa).
+      role: "fit" or "holdout".
+      conditions: operating point (freq Hz, phi_max V, temp K, geometry
+        overrides, ...), as given.
+      source: the CSV file.
+      name: unique name within the experiment (default the file's stem).
+      loading: nominal voltage history (see ``LOADING_KINDS``) or None.
+      weight: relative weight in a fit.
+      columns, units: the CSV headers and units the channels came from.
+
+    ``trace["displacement"]`` returns a channel (``trace["time"]`` the time).
+    """
+
+    time: np.ndarray | None
+    channels: Mapping[str, np.ndarray]
+    role: str = "fit"
+    conditions: Mapping[str, Any] = field(default_factory=dict)
+    source: Path | None = None
+    name: str = ""
+    loading: Mapping[str, Any] | None = None
+    weight: float = 1.0
+    columns: Mapping[str, str] = field(default_factory=dict)
+    units: Mapping[str, str] = field(default_factory=dict)
+
+    def __getitem__(self, channel: str) -> np.ndarray:
+        if channel == "time" and self.time is not None:
+            return self.time
+        try:
+            return self.channels[channel]
+        except KeyError:
+            have = (["time"] if self.time is not None else []) + list(self.channels)
+            raise KeyError(f"trace '{self.name}' has no channel '{channel}'; it has {fmt_list(have)}") from None
+
+    def __contains__(self, channel: str) -> bool:
+        return (channel == "time" and self.time is not None) or channel in self.channels
+
+    def __len__(self) -> int:
+        if self.time is not None:
+            return int(self.time.shape[0])
+        return int(next(iter(self.channels.values())).shape[0]) if self.channels else 0
+
+    @property
+    def frequency(self) -> float | None:
+        """Excitation frequency (Hz) from ``loading`` or ``conditions``, if any."""
+        if self.loading is not None and "freq" in self.loading:
+            return float(self.loading["freq"])
+        f = self.conditions.get("freq")
+        return None if f is None else float(f)
+
+    @property
+    def dt(self) -> float | None:
+        """Sample spacing (s) if time is uniformly sampled (to 0.1 % of the mean spacing), else None."""
+        if self.time is None or self.time.size < 2:
+            return None
+        d = np.diff(self.time)
+        return float(np.mean(d)) if np.ptp(d) <= 1e-3 * np.mean(d) else None
+
+    def voltage(self, t=None):
+        """Voltage (V) at ``t`` (default: the trace's time): the measured
+        channel if present (interpolated when ``t`` is given), else the nominal
+        ``loading``; None if neither exists."""
+        if "voltage" in self.channels:
+            v = self.channels["voltage"]
+            if t is None:
+                return v
+            if self.time is None:
+                raise ValueError(f"trace '{self.name}': no time column to interpolate the voltage on")
+            return np.interp(np.asarray(t, dtype=float), self.time, v)
+        if self.loading is not None:
+            tt = self.time if t is None else t
+            if tt is None:
+                raise ValueError(f"trace '{self.name}': no time column to evaluate the loading on")
+            return loading_voltage(self.loading, tt)
+        return None
+
+
+def _read_lines(path: Path) -> list[str]:
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.splitlines()
+
+
+def _parse_cell(text: str, path, row, line, column) -> float:
+    s = text.strip()
+    if s == "":
+        raise DataError("empty cell; expected a number", file=path, row=row, line=line, column=column)
+    try:
+        val = float(s)
+    except ValueError:
+        hint = " (decimal comma? use '.' as decimal separator)" if re.fullmatch(r"[-+]?\d+,\d+", s) else ""
+        raise DataError(f"cannot parse '{s}' as a number{hint}", file=path, row=row, line=line,
+                        column=column) from None
+    if not math.isfinite(val):
+        raise DataError(f"non-finite value '{s}' (NaN and inf are not allowed)", file=path, row=row,
+                        line=line, column=column)
+    return val
+
+
+def load_trace_csv(
+    path,
+    columns: Mapping[str, str] | None = None,
+    units: Mapping[str, str] | None = None,
+    *,
+    role: str = "fit",
+    conditions: Mapping[str, Any] | None = None,
+    loading: Mapping[str, Any] | None = None,
+    name: str | None = None,
+    weight: float = 1.0,
+    required: tuple[str, ...] = (),
+) -> Trace:
+    """Read a comma-separated trace file into a ``Trace`` (SI units).
+
+    Args:
+      path: CSV file with one header row; '#' comment lines and blank lines
+        are skipped; extra columns are ignored.
+      columns: channel -> header (see ``CHANNELS``); default: every header that
+        is itself a channel name.
+      units: channel -> unit (see ``UNITS``); channels not listed are SI.
+      role, conditions, loading, name, weight: stored on the trace (``loading``
+        is validated, see ``LOADING_KINDS``).
+      required: channels that must be present.
+
+    Raises ``DataError`` naming the file, row (header = 1) and column.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError("file not found" + (" (it is a directory)" if path.is_dir() else ""), file=path)
+    lines = _read_lines(path)
+    # (row, line, cells) for header and data, skipping comments and blanks
+    records = []
+    row = 0
+    for i, text in enumerate(lines, start=1):
+        s = text.strip()
+        if not s or s.startswith("#"):
+            continue
+        row += 1
+        cells = next(csv.reader([text], skipinitialspace=True))
+        records.append((row, i, [c.strip() for c in cells]))
+    if not records:
+        raise DataError("empty file: no header row and no data (comment and blank lines only)", file=path)
+    _, hline, header = records[0]
+    if len(header) == 1 and ";" in header[0]:
+        raise DataError(f"header '{header[0]}' looks semicolon-separated; trace files must be "
+                        "comma-separated", file=path, row=1, line=hline)
+    for j, h in enumerate(header):
+        if h == "":
+            raise DataError(f"empty header cell (column {j + 1})", file=path, row=1, line=hline)
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise DataError(f"duplicate header(s) {fmt_list(dup)}", file=path, row=1, line=hline)
+    if len(records) < 2:
+        raise DataError(f"no data rows after the header ({fmt_list(header)})", file=path, row=1, line=hline)
+
+    if columns is None:
+        columns = {h: h for h in header if h in CHANNELS}
+        if not columns:
+            raise DataError(
+                f"no column mapping given and no header is a channel name; present columns: "
+                f"{fmt_list(header)}; channels: {fmt_list(CHANNELS)}", file=path, row=1, line=hline)
+    columns = dict(columns)
+    units = dict(units or {})
+    for ch in columns:
+        if ch not in CHANNELS:
+            raise DataError(f"unknown channel '{ch}'{suggest(ch, CHANNELS)}; known channels: "
+                            f"{fmt_list(CHANNELS)}", file=path, key=f"columns.{ch}")
+        if not isinstance(columns[ch], str):
+            raise DataError(f"column name for channel '{ch}' must be a string, got {columns[ch]!r}",
+                            file=path, key=f"columns.{ch}")
+    for ch in units:
+        if ch not in columns:
+            raise DataError(f"unit given for channel '{ch}', which is not among the mapped columns "
+                            f"({fmt_list(columns)})", file=path, key=f"units.{ch}")
+        if not isinstance(units[ch], str):
+            raise DataError(f"unit for channel '{ch}' must be a string, got {units[ch]!r}",
+                            file=path, key=f"units.{ch}")
+        to_si([], units[ch], ch, file=path)  # validates the unit
+    missing_ch = [ch for ch in required if ch not in columns]
+    if missing_ch:
+        raise DataError(f"required channel(s) {fmt_list(missing_ch)} not mapped; mapped: "
+                        f"{fmt_list(columns)}; present columns: {fmt_list(header)}", file=path)
+    index = {}
+    for ch, col in columns.items():
+        if col not in header:
+            raise DataError(f"column '{col}' (channel '{ch}') not found{suggest(col, header)}; "
+                            f"present columns: {fmt_list(header)}", file=path, row=1, line=hline,
+                            column=col)
+        index[ch] = header.index(col)
+
+    data = {ch: np.empty(len(records) - 1) for ch in columns}
+    for k, (r, ln, cells) in enumerate(records[1:]):
+        if len(cells) != len(header):
+            raise DataError(f"expected {len(header)} cells like the header, found {len(cells)}",
+                            file=path, row=r, line=ln)
+        for ch, j in index.items():
+            data[ch][k] = _parse_cell(cells[j], path, r, ln, header[j])
+
+    if "time" in data:  # checked in the file's units (conversion is increasing)
+        bad = np.nonzero(np.diff(data["time"]) <= 0)[0]
+        if bad.size:
+            k = int(bad[0]) + 1
+            r, ln, cells = records[1 + k]
+            rp, _, cells_p = records[k]
+            j = index["time"]
+            raise DataError(
+                f"time must increase strictly: '{cells[j]}' is not after '{cells_p[j]}' (row {rp})",
+                file=path, row=r, line=ln, column=columns["time"])
+    out = {}
+    for ch, vals in data.items():
+        arr = to_si(vals, units[ch], ch, file=path) if ch in units else np.asarray(vals, dtype=float)
+        arr.setflags(write=False)
+        out[ch] = arr
+    time = out.pop("time", None)
+    if loading is not None:
+        loading = check_loading(dict(loading), path, "loading")
+    return Trace(
+        time=time,
+        channels=out,
+        role=role,
+        conditions=dict(conditions or {}),
+        source=path,
+        name=path.stem if name is None else name,
+        loading=loading,
+        weight=float(weight),
+        columns=columns,
+        units={ch: units.get(ch, SI_UNIT[CHANNELS[ch]]) for ch in columns},
+    )
