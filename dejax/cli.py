@@ -360,9 +360,9 @@ def _run_torsional(args):
 
 
 def _cmd_verify(args):
-    from . import verify
+    from .verification import cases
 
-    ok = verify.main(quick=args.quick, json_path=args.json, quiet=args.quiet)
+    ok = cases.main(quick=args.quick, json_path=args.json, quiet=args.quiet)
     return 0 if ok else 1
 
 

@@ -57,7 +57,7 @@ def _forbid(monkeypatch, target):
         (["run", "block", "--t-end", "0.01", "--dt", "0.01", "--out", "{bad}/x.h5"], "dejax.integrate.run_chunked"),
         (["run", "block", "--t-end", "0.01", "--dt", "0.01", "--out", "{ok}/x.h5", "--vtu", "{bad}/vtu"],
          "dejax.integrate.run_chunked"),
-        (["verify", "--quick", "--json", "{bad}/v.json"], "dejax.verify.main"),
+        (["verify", "--quick", "--json", "{bad}/v.json"], "dejax.verification.cases.main"),
         (["sweep", "--freq", "10", "--json", "{bad}/s.json"], "dejax.sweep.run_sweep"),
         (["bench", "--cases", "B1", "--json", "{bad}/b.json"], "dejax.bench.main"),
         (["fit", "data/examples/vhb4910_uniaxial.toml", "--out", "{bad}/fit"], "fitting.experiment.run_experiment"),
@@ -280,7 +280,7 @@ def test_sweep_reports_progress_per_case(capsys):
 
 
 def test_verify_announces_each_check_group(capsys):
-    from dejax import verify
+    from dejax.verification import cases as verify
 
     labels = [label for label, _ in verify.check_groups(quick=True)]
     assert len(labels) == 5 and labels[0] == "element vs Project Chrono"

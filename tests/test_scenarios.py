@@ -23,9 +23,9 @@ from dejax import constraints as cs
 from dejax import integrate as it
 from dejax import linsolve, loads
 from dejax import model as mdl
-from dejax import reference as ref
 from dejax import scenarios
 from dejax.mesh import rolled_tube_mesh
+from dejax.verification import models as ref
 
 
 def _rotation(axis, angle):

@@ -1,7 +1,11 @@
 """Verification against references independent of the finite-element code.
 
-``data/``: reference data shipped with the package (Project Chrono's ANCF 3843 element
-data, with its licence and provenance in ``data/chrono-ancf3843/README.md``).
+* ``models``: reduced (homogeneous, incompressible) reference models derived by hand from
+  the free energy and solved with diffrax or in closed form; they do not use
+  ``dejax.material``.
+* ``cases``: the ``dejax verify`` cases, each returning ``Check`` rows, and the table.
+* ``data/``: reference data shipped with the package (Project Chrono's ANCF 3843 element
+  data, with its licence and provenance in ``data/chrono-ancf3843/README.md``).
 """
 from pathlib import Path
 

@@ -2,7 +2,7 @@
 
 Each case returns ``Check`` rows (case, reference, error, tolerance, passed). The
 references are independent of the finite-element code: the reduced homogeneous
-block model solved with diffrax (``dejax.reference``), the closed-form Gent
+block model solved with diffrax (``dejax.verification.models``), the closed-form Gent
 equilibrium, theory of the generalized-alpha scheme (order 2, energy
 conservation at rho_inf = 1) and Project Chrono's element data. Tests call the
 same case functions at reduced sizes.
@@ -18,13 +18,15 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from . import constraints as cs
-from . import integrate as it
-from . import loads
-from . import model as mdl
-from . import reference, scenarios
-from .material import Material
-from .mesh import block_mesh
+from .. import constraints as cs
+from .. import integrate as it
+from .. import loads
+from .. import model as mdl
+from .. import scenarios
+from ..material import Material
+from ..mesh import block_mesh
+from . import data_path
+from . import models
 
 
 @dataclasses.dataclass
@@ -67,8 +69,8 @@ def block_vs_reduced(phis=(8e3, 12e3, 16e3), shapes=((1, 1, 1), (2, 2, 2)), t_en
         times, lam, _ = block_runs(phis, shape, t_end, dt, mat)
         secs = time.perf_counter() - tic
         for k, phi in enumerate(phis):
-            ref = reference.homogeneous_block_response(
-                times, reference.eq41(phi), 1e-3, 67e3, 15.0, 4e-11, [67e3], [5.0], [3000.0]
+            ref = models.homogeneous_block_response(
+                times, models.eq41(phi), 1e-3, 67e3, 15.0, 4e-11, [67e3], [5.0], [3000.0]
             )
             err = float(np.max(np.abs(lam[k] - ref) / ref))
             name = f"block {'x'.join(map(str, shape))} viscous, phi_m = {phi / 1e3:g} kV, 0-{t_end:g} s"
@@ -84,7 +86,7 @@ def block_vs_closed_form(phis=(4e3, 8e3, 12e3, 16e3, 20e3), t_end=1.5, dt=1e-3, 
     secs = time.perf_counter() - tic
     rows = []
     for k, phi in enumerate(phis):
-        ref = reference.gent_equibiaxial_stretch(phi, 1e-3, 67e3, 15.0, 4e-11)
+        ref = models.gent_equibiaxial_stretch(phi, 1e-3, 67e3, 15.0, 4e-11)
         err = float(abs(lam[k, -1] - ref) / ref)
         rows.append(Check(f"block hyperelastic quasi-static, {phi / 1e3:g} kV", "closed-form Gent equilibrium", err, tol, secs / len(phis)))
     return rows
@@ -168,8 +170,7 @@ def generalized_alpha_energy(n_steps=1000, dt=2e-4, tol=1e-3):
 def element_vs_chrono(tol=1e-9):
     """Mass matrix of one ANCF element against Project Chrono's reference file (shipped in
     ``dejax/verification/data``; FileNotFoundError naming it when absent)."""
-    from .element import element_mass, element_reference_data, gauss_rule, NODE_CORNERS
-    from .verification import data_path
+    from ..element import element_mass, element_reference_data, gauss_rule, NODE_CORNERS
 
     ref = np.loadtxt(data_path("chrono-ancf3843", "UT_ANCFBrick_3843_MassMatrix.txt"))
     P, W = gauss_rule(7)

@@ -1,13 +1,14 @@
-"""The DE block of paper Sec. 4 against independent references (issue 2, item 6).
+"""The ``dejax verify`` cases (dejax.verification.cases): the DE block of paper Sec. 4
+against independent references (issue 2, item 6).
 
-The reference values come from ``dejax.reference`` (a separate derivation of the
+The reference values come from ``dejax.verification.models`` (a separate derivation of the
 reduced homogeneous model, solved with diffrax, and the closed-form Gent
 equilibrium), not from the finite-element code under test.
 """
 import numpy as np
 import pytest
 
-from dejax import verify
+from dejax.verification import cases as verify
 
 
 @pytest.mark.parametrize("shape, dt", [((1, 1, 1), 1e-3),
@@ -31,7 +32,8 @@ def test_block_viscous_delay_is_visible_and_relaxes():
     """With the viscous unit the stretch lags the relaxed (mu_inf-only) Gent equilibrium at
     the end of the ramp (t = 1 s) and creeps up to it during the hold: the creep time is
     eta (mu_inf + mu_1) / (2 mu_1 mu_inf) = 45 ms, so by 3 s it is fully relaxed."""
-    from dejax import reference, scenarios
+    from dejax import scenarios
+    from dejax.verification import models as reference
 
     times, lam, _ = verify.block_runs((16e3,), (1, 1, 1), 3.0, 1e-3, scenarios.block_material())
     lam = lam[0]

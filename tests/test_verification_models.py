@@ -1,4 +1,4 @@
-"""Tests of the independent reduced reference models (dejax.reference).
+"""Tests of the independent reduced reference models (dejax.verification.models).
 
 Every expected value here is computed independently of the code under test: closed
 forms derived by hand (in the comments) and solved with scipy, or the numbers printed
@@ -12,7 +12,7 @@ import pytest
 from scipy import optimize
 
 import dejax  # noqa: F401  (float64)
-from dejax import reference as R
+from dejax.verification import models as R
 
 # Block parameters of docs/paper-notes.md (SI)
 MU_INF, JM_INF, MU1, JM1, ETA1 = 67e3, 15.0, 67e3, 5.0, 3000.0
