@@ -30,6 +30,9 @@ SCALARS = ("mu_inf", "K_inf", "Jm_inf", "eps", "rho")
 """The equilibrium-network parameters, in order."""
 UNIT_KEYS = ("mu", "K", "Jm", "eta")
 """The parameters of each viscous unit, in order."""
+UNITS = {"mu_inf": "Pa", "K_inf": "Pa", "Jm_inf": "1", "eps": "F/m", "rho": "kg/m^3",
+         "mu": "Pa", "K": "Pa", "Jm": "1", "eta": "Pa s"}
+"""SI units of the scalars and of the unit keys ("1" = dimensionless)."""
 PATTERN = re.compile(r"^(mu_inf|K_inf|Jm_inf|eps|rho|c_d|(mu|K|Jm|eta)_(\d+))$")
 """A parameter name; group 2 is the unit key and group 3 the unit number of a unit parameter."""
 
@@ -100,10 +103,9 @@ def fields(material: Material) -> dict:
 
 
 def unit(name: str) -> str:
-    """SI unit of a parameter name (mu_inf, mu_1, eta_2, c_d, ...); "1" = dimensionless."""
-    from .results import unit_of
-
+    """SI unit of a parameter name (mu_inf, mu_1, eta_2, c_d, ...); "1" = dimensionless,
+    "unknown" for a name that is no parameter."""
     if name == "c_d":
         return "1/s"
     g = PATTERN.match(name)
-    return unit_of(g.group(2) if g and g.group(2) else name)
+    return UNITS.get(g.group(2) if g and g.group(2) else name, "unknown")

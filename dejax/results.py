@@ -27,7 +27,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import __version__
+from . import __version__, parameters
 
 
 UNITS = {
@@ -40,8 +40,7 @@ UNITS = {
     # scenario and material parameters
     "phi_max": "V", "phibar_max": "1", "L": "m", "h": "m", "r": "m", "lx": "m", "ly": "m", "lz": "m",
     "thickness": "m", "length": "m", "width": "m", "turns": "1", "mesh": "1", "gauss_order": "1", "freq": "Hz",
-    "t_ramp": "s", "damping": "1/s", "mu_inf": "Pa", "K_inf": "Pa", "Jm_inf": "1", "eps": "F/m", "rho": "kg/m^3",
-    "mu": "Pa", "K": "Pa", "Jm": "1", "eta": "Pa s",
+    "t_ramp": "s", "damping": "1/s", **parameters.UNITS,
     # run attributes
     "dt": "s", "dt_requested": "s", "t_end": "s", "rho_inf": "1", "newton_tol": "1", "dt_min": "s",
     "cutbacks": "1", "dt_smallest": "s", "compile_s": "s", "run_s": "s", "newton_mean": "1", "newton_max": "1",
