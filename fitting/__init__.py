@@ -10,7 +10,8 @@ Modules (each imports only those above it):
   experiment   forward models of fits (uniaxial, block, rolled) from experiment files
   sensitivity  forward-mode design sensitivities of the rolled tube
   effects      the library of candidate unmodelled effects
-  diagnose     where the sim-to-real gap lies, which effect explains it, the report
+  diagnose     where the sim-to-real gap lies, which effect explains it, how far it shrinks
+  report       the diagnosis report (markdown, JSON, figures)
   cli          the verbs fit, sensitivity, diagnose (registered by ``dejax.cli``)
 
 Importing ``fitting`` imports ``dejax``, which enables float64 in JAX.

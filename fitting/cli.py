@@ -25,6 +25,7 @@ from dejax.argtypes import int_at_least, nonneg, positive
 from . import diagnose as dg
 from . import effects as fx
 from . import experiment
+from . import report
 from . import sensitivity as S
 from .data import load_experiment
 from .schema import DataError
@@ -181,7 +182,7 @@ def diagnose_handler(args) -> int:
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
         print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2
-    files = dg.write_report(diag, traces, args.out, title=f"Gap diagnosis: {exp.name}")
+    files = report.write_report(diag, traces, args.out, title=f"Gap diagnosis: {exp.name}")
     print(diag.table())
     print(f"verdict: {diag.verdict}")
     print(f"report: {files['markdown']}")

@@ -15,6 +15,7 @@ import pytest
 from fitting import cli as fitting_cli
 from fitting import diagnose as dg
 from fitting import effects as fx
+from fitting import report
 
 
 class AnalyticForward(dg.Forward):
@@ -84,7 +85,7 @@ def test_breakdown_localises_offset():
 def test_report_and_cli_registration(tmp_path):
     tr = _traces({"sensor_offset": {"c": 1e-3}}, seed=5)
     d = dg.diagnose(AnalyticForward(), tr, ["sensor_offset", "voltage_lag"])
-    files = dg.write_report(d, tr, tmp_path)
+    files = report.write_report(d, tr, tmp_path)
     js = json.loads((tmp_path / "report.json").read_text())
     assert js["best"] == "sensor_offset" and js["ranking"][0]["name"] == "sensor_offset"
     assert "gap explained by 'sensor_offset'" in (tmp_path / "report.md").read_text()
