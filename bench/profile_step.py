@@ -5,7 +5,7 @@
 Times (ms, after compilation, median of repeats) of: the residual (element forces +
 viscous update), the element system (forces + consistent tangent), condensation +
 dense/sparse assembly, the factorization, one solve with it, and a whole step of the
-rolled tube (Model IV, 50 kV, 30 Hz, dt = 1e-4 s) from a state part-way into the run.
+rolled tube (Model IV, 50 kV, 30 Hz, dt = 1e-4 s unless --dt) from a state part-way into the run.
 """
 from __future__ import annotations
 
@@ -36,18 +36,19 @@ def main():
     ap.add_argument("--mesh", default="4x8x1")
     ap.add_argument("--steps", type=int, default=100, help="steps run before profiling (a loaded state)")
     ap.add_argument("--model", default="IV")
+    ap.add_argument("--dt", type=float, default=1e-4, help="time step (s)")
     a = ap.parse_args()
     shape = tuple(int(s) for s in a.mesh.split("x"))
     p = scenarios.rolled(a.model, 30.0, 50e3, shape=shape)
     m, load = p.model, p.loading
     solver = linsolve.choose_solver(m.structure)
     scheme = p.scheme()
-    dt = 1e-4
+    dt = a.dt
     times = it.time_grid(a.steps * dt, dt)
     state = it.simulate(m, load, times, p.output_fn, scheme, solver=solver).check().final
     t1 = state.t + dt
     ctx = it._StepContext(state=state, t1=jnp.asarray(t1), phi1=load.phi(t1), u1=load.u(t1) if m.prescribed_dirs.shape[0] else jnp.zeros(0),
-                          f_ext=mdl.gravity_force(m))
+                          f_ext=mdl.gravity_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
     z = scheme.predict(state, dt, "velocity")[m.structure.free]
     pr = state.p
     print(f"mesh {a.mesh}: {m.dV.shape[0]} elements, {m.dV.size} Gauss points, {m.structure.n_free} unknowns, "
@@ -73,8 +74,8 @@ def main():
     E = mdl.nominal_field(m, ctx.phi1)
     pg = mdl.pressure_at_points(m, pr)
     from dejax import material as mat
-    pt_res = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_stress_and_update)(F_, E, state.Cv, dt, pg, m.material))
-    pt_tan = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_tangent_and_update)(F_, E, state.Cv, dt, pg, m.material))
+    pt_res = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_stress_and_update)(F_, E, ctx.flow, dt, pg, m.material))
+    pt_tan = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_tangent_and_update)(F_, E, ctx.flow, dt, pg, m.material))
     t_pres, _ = timed(pt_res, F_)
     t_ptan, _ = timed(pt_tan, F_)
     adm = jax.jit(lambda z: it._admissible(m, ctx, z))

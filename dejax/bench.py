@@ -88,7 +88,8 @@ def _run_case(name, problem, t_end, dt, max_steps, solver="auto", newton=it.Newt
     )
     dev = float("nan")
     if reference is not None and sol.ok:
-        t_ref, x_ref = reference_trace(f"{reference}-{float(times[n]):.6g}s", problem, float(times[n]))
+        key = f"{reference}-{problem.scheme().flow_update}-{float(times[n]):.6g}s"
+        t_ref, x_ref = reference_trace(key, problem, float(times[n]))
         dev = deviation(np.asarray(sol.time), np.asarray(sol.outputs["x_P"]), t_ref, x_ref)
     iters = np.asarray(sol.iterations)
     facs = np.asarray(sol.factorizations)
