@@ -219,54 +219,6 @@ def test_every_help_shows_defaults():
 # ----------------------------------------------------------------------------- progress
 
 
-def test_progress_line_and_honest_failure():
-    import io
-
-    s = pg.format_line(50, 100, 0.5, 1.0, 2.0)
-    assert "50%" in s and "step 50/100" in s and "t = 0.5/1 s" in s and "25 steps/s" in s and "ETA 0:00:02" in s
-    buf = io.StringIO()
-    bar = pg.ProgressBar(100, 1.0, stream=buf, interval=0.0)
-    bar.compiling("x")
-    assert buf.getvalue() == "compiling x ...\n"
-    bar.compiling("x", cached=True)
-    assert "loaded from the compile cache" in buf.getvalue().splitlines()[-1]
-    bar(100, 100, 1.0, 1.0)  # the chunk end a failure hides
-    bar.close(failed=True, k=42, t=0.42)
-    last = buf.getvalue().rstrip("\n").splitlines()[-1]
-    assert last.startswith("failed after step 42/100 (42%") and "100%" not in last
-    quiet = io.StringIO()
-    q = pg.ProgressBar(10, 1.0, quiet=True, stream=quiet)
-    q.compiling()
-    q(10, 10, 1.0, 1.0)
-    q.close()
-    assert quiet.getvalue() == ""
-
-
-def test_chunks_are_small_and_projection_scales():
-    assert pg.chunk_steps(3000, 4e-4) == 30  # 1 % of the run
-    assert pg.chunk_steps(3334, 1.92) == 1  # paper tube: one step per update
-    assert pg.chunk_steps(5, 1e-4) == 1
-    assert pg.chunk_steps(3000, 4e-4, frames=500) == 6  # VTU frames are taken at chunk ends
-    assert pg.projected_seconds(960, 3334) > 3600 > pg.projected_seconds(1, 3000)
-
-
-def test_outputs_figure_axes_carry_units(tmp_path, monkeypatch):
-    import matplotlib.axes
-
-    from dejax import plot
-    from dejax.results import read_h5
-
-    t = np.linspace(0.0, 1.0, 11)
-    h5 = write_h5(tmp_path / "r.h5", t, {"v_P": np.sin(t), "voltage": 1e3 * t, "thickness_stretch": 1 - 0.1 * t})
-    assert read_h5(h5)["units"] == {"v_P": "m/s", "voltage": "V", "thickness_stretch": "1"}
-    labels = []
-    setter = matplotlib.axes.Axes.set_ylabel
-    monkeypatch.setattr(matplotlib.axes.Axes, "set_ylabel", lambda self, s, *a, **k: (labels.append(s),
-                                                                                       setter(self, s, *a, **k))[1])
-    plot.plot_file(h5, tmp_path / "png")
-    assert {"v_P (m/s)", "voltage (V)", "thickness_stretch (-)"} <= set(labels)
-
-
 def test_sweep_reports_progress_per_case(capsys):
     rc = cli.main(["sweep", "--freq", "10,20", "--cycles", "2", "--steps-per-cycle", "10", "--mesh", "1x4x1"])
     err = capsys.readouterr().err
@@ -330,25 +282,6 @@ def test_too_coarse_cycles_give_a_clear_error():
     assert cycle_table(t, np.sin(2 * np.pi * 10 * t) ** 2, None, 10.0)["x_max"].size == 1
 
 
-def test_plot_of_a_failed_run_says_so(tmp_path, monkeypatch):
-    import matplotlib.figure
-
-    from dejax import plot
-
-    t = np.linspace(0.0, 0.24, 25)
-    h5 = write_h5(tmp_path / "f.h5", t, {"lateral_stretch": 1 + t, "voltage": 1e5 * t},
-                  attrs=dict(status="failed", fail_time=0.25, fail_status="instability", t_last_converged=0.24))
-    titles = []
-    sup = matplotlib.figure.Figure.suptitle
-    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle",
-                        lambda self, s, *a, **k: (titles.append(s), sup(self, s, *a, **k))[1])
-    plot.plot_file(h5, tmp_path / "png")
-    assert titles == ["run failed at t = 0.25 s (instability); data up to t = 0.24 s"]
-    ok = write_h5(tmp_path / "ok.h5", t, {"voltage": t}, attrs=dict(status="ok"))
-    plot.plot_file(ok, tmp_path / "png")
-    assert len(titles) == 1
-
-
 def test_every_scenario_output_and_parameter_has_a_unit():
     """The results-file units table covers what the scenarios record (their output
     functions, traced abstractly: no compilation) and store."""
@@ -365,28 +298,6 @@ def test_every_scenario_output_and_parameter_has_a_unit():
         assert "unknown" not in units.values(), (prob.name, units)
         names = jax.eval_shape(lambda p=prob: p.output_fn(p.model, p.loading, it.initial_state(p.model, p.loading)))
         assert len(names) >= 3 and all(unit_of(k) != "unknown" for k in names), (prob.name, list(names))
-
-
-def test_progress_redraws_in_place_on_a_terminal():
-    import io
-
-    class Terminal(io.StringIO):
-        def isatty(self):
-            return True
-
-    term = Terminal()
-    bar = pg.ProgressBar(4, 0.4, stream=term, interval=0.0)
-    for k in range(1, 5):
-        bar(k, 4, 0.1 * k, 0.1 * k)
-    bar.close()
-    text = term.getvalue()
-    assert text.count("\r") == 5 and text.count("\n") == 1 and text.endswith("\n")
-    assert "step 4/4" in text.split("\r")[-1] and "100%" in text.split("\r")[-1]
-    slow = Terminal()
-    bar = pg.ProgressBar(1000, 1.0, stream=slow, interval=60.0)  # throttled: only the first update drawn
-    for k in range(1, 1001):
-        bar(k, 1000, k / 1000, 1.0)
-    assert slow.getvalue().count("\r") == 1
 
 
 @pytest.mark.slow

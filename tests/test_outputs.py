@@ -1,4 +1,4 @@
-"""Post-processing (dejax.outputs) and plotting (dejax.plot): no time stepping, so no
+"""Post-processing (dejax.outputs): no time stepping, so no
 compilation of the stepper; states are built from known deformations."""
 import jax.numpy as jnp
 import numpy as np
@@ -98,42 +98,3 @@ def test_vtu_export_and_h5_snapshots_round_trip(tube, tmp_path):
     paths = po.vtu_from_h5(h5, tmp_path / "vtu")
     assert len(paths) == 2 and (tmp_path / "vtu" / "r.pvd").exists()
     np.testing.assert_allclose(meshio.read(paths[1]).points, X @ A.T, atol=1e-15)
-
-
-def test_plot_writes_pngs(tube, tmp_path):
-    from dejax import cli
-
-    m = tube.model
-    f = 30.0
-    t = np.linspace(0, 3 / f, 301)
-    field = 0.5 * 2.5e7 * (1 - np.cos(2 * np.pi * f * t))
-    x = 1e-4 * (1 - np.cos(2 * np.pi * f * t - 0.3)) + 1e-5 * t * f
-    s0 = _rest(m)
-    snaps = po.snapshots_from_states(tube, {0: s0})
-    h5 = write_h5(tmp_path / "r.h5", t, {"x_P": x, "v_P": np.gradient(x, t), "field": field, "voltage": field * 2e-3},
-                  tube.params, snapshots=snaps)
-    import argparse
-
-    parser = argparse.ArgumentParser()
-    cli.register_plot(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["plot", str(h5), "--out", str(tmp_path / "png")])
-    assert args.func(args) == 0
-    names = sorted(p.name for p in (tmp_path / "png").iterdir())
-    assert {"r_x.png", "r_loop.png", "r_kc.png", "r_outputs.png", "r_snap0.png"} <= set(names)
-    args = parser.parse_args(["plot", str(tmp_path / "missing.h5")])
-    assert args.func(args) == 2
-
-
-@pytest.mark.slow
-def test_sweep_sequential_and_vmap_agree():
-    from dejax import sweep
-
-    cases = sweep.cases_from_grid({"freq": [20.0, 40.0]}, dict(phi_max=25e3))
-    rows_s, info_s = sweep.run_sweep(cases, (1, 4, 1), n_cycles=2, steps_per_cycle=40, method="sequential")
-    rows_v, info_v = sweep.run_sweep(cases, (1, 4, 1), n_cycles=2, steps_per_cycle=40, method="vmap")
-    print("sweep timings: sequential", info_s, "vmap", info_v)
-    for a, b in zip(rows_s, rows_v):
-        assert a["ok"] and b["ok"]
-        for k in ("x_max", "x_min", "mean", "k_c", "loop_area"):
-            np.testing.assert_allclose(a[k], b[k], rtol=1e-7)
-    assert rows_s[0]["x_max"] > 0
