@@ -196,6 +196,12 @@ class NewtonOptions:
       steps, and refactor only when an iteration contracts the residual by less than
       ``refactor_rate`` or a stale direction does not decrease it (or at the first use, or
       after a change of step size). False: full Newton (refactor every iteration).
+    anderson: memory of the Anderson acceleration of modified Newton (0 = off): with a
+      reused factorization, each correction is combined with the last ``anderson``
+      iterates' corrections (type-II Anderson mixing of the fixed-point map x -> x + dx
+      of the factorization in use; history reset at every refactorization). A fresh
+      factorization's direction is never mixed. Measured on the tube 4x8x1 with a
+      factorization 60 steps old: 1e-6 in 4 iterations instead of 6.
     predictor: starting iterate of each step: "velocity" (q_n + h v_n, the default: robust
       for quasi-static ramps with large steps), "paper" (Eq. 33, uses the acceleration) or
       "constant" (q_n). The converged solution does not depend on it.
@@ -205,6 +211,7 @@ class NewtonOptions:
     max_iter: int = 25
     reuse: bool = True
     refactor_rate: float = 0.2
+    anderson: int = 2
     predictor: str = "velocity"
     criterion: str = "residual"
     line_search: bool = True
@@ -217,6 +224,8 @@ class NewtonOptions:
             raise ValueError(f"criterion must be 'residual' or 'correction', got {self.criterion!r}")
         if not self.tol > 0:
             raise ValueError(f"Newton tolerance must be > 0, got {self.tol}")
+        if not (isinstance(self.anderson, int) and self.anderson >= 0):
+            raise ValueError(f"anderson (memory) must be an integer >= 0, got {self.anderson!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -383,6 +392,40 @@ def _condensed_rhs(model: Model, ru, g, kup, kpp):
     return -(ru - mdl.reduce(model, corr))
 
 
+class _Anderson(eqx.Module):
+    """History of the Anderson mixing: differences of the last iterates dX and of their
+    corrections dF (memory, n), how many are valid (-1: the previous (x, f) is not one
+    either), and the previous iterate x and its plain correction f."""
+
+    dX: jax.Array
+    dF: jax.Array
+    count: jax.Array
+    x: jax.Array
+    f: jax.Array
+
+
+def _anderson_empty(memory: int, n: int) -> _Anderson:
+    return _Anderson(jnp.zeros((memory, n)), jnp.zeros((memory, n)), jnp.asarray(-1), jnp.zeros(n), jnp.zeros(n))
+
+
+def _anderson_mix(h: _Anderson, x, f, w, reset):
+    """(mixed correction, new history) at iterate x with plain correction f; weights w (n,)
+    of the least-squares norm; ``reset``: start a new history here (plain correction)."""
+    memory = h.dX.shape[0]
+    have_prev = (h.count >= 0) & ~reset
+    dX = jnp.where(have_prev, jnp.roll(h.dX, 1, axis=0).at[0].set(x - h.x), 0.0)
+    dF = jnp.where(have_prev, jnp.roll(h.dF, 1, axis=0).at[0].set(f - h.f), 0.0)
+    count = jnp.where(have_prev, jnp.minimum(h.count + 1, memory), 0)
+    valid = jnp.arange(memory) < count
+    A = jnp.where(valid[:, None], dF * w, 0.0)
+    G = A @ A.T
+    lam = 1e-10 * jnp.max(jnp.diag(G)) + 1e-300
+    G = jnp.where(valid[:, None] & valid[None, :], G, 0.0) + jnp.diag(jnp.where(valid, lam, 1.0))
+    gamma = jnp.where(valid, jnp.linalg.solve(G, A @ (f * w)), 0.0)
+    step = f - gamma @ (dX + dF)
+    return step, _Anderson(dX, dF, count, x, f)
+
+
 def _make_newton(scheme, opts: NewtonOptions, solver):
     """Newton solve of one step: ``newton(model, ctx, z0, p0, fac, valid) -> (z, p,
     iterations, factorizations, converged, fac, Cv)``; fac is the factorization in use at
@@ -437,8 +480,11 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             a, _, out = jax.lax.while_loop(cond, body, (jnp.asarray(2.0), 0, placeholder))
             return a, out
 
+        n_z, n_p = z0.size, p0.size
+        weights = jnp.concatenate([1.0 / scale, jnp.full(n_p, 1.0 / _shear_scale(model))])
+
         def body(c):
-            z, p, ru, g, Cv, res, res_prev, res0, it, nfac, fac, valid, conv, alive = c
+            z, p, ru, g, Cv, res, res_prev, res0, it, nfac, fac, valid, conv, alive, aa = c
             # the first pass (it = -1) only evaluates the residual at the starting iterate,
             # through the same traced trial as the line search (one residual in the program)
             start = it < 0
@@ -447,10 +493,17 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             fac = jax.lax.cond(need, lambda: factor(model, ctx, z, p), lambda: fac)
             dz, dp = jax.lax.cond(start, lambda: (jnp.zeros_like(z), jnp.zeros_like(p)),
                                   lambda: direction(model, fac, ru, g))
+            if opts.anderson and opts.reuse:
+                x = jnp.concatenate([z, p.reshape(-1)])
+                step, aa_new = _anderson_mix(aa, x, jnp.concatenate([dz, dp.reshape(-1)]), weights, need | start)
+                aa_new = eqx.tree_at(lambda h: h.count, aa_new, jnp.where(start, -1, aa_new.count))
+                dz, dp = step[:n_z], step[n_z:].reshape(p.shape)
             a, (zt, pt, rut, gt, Cvt, rest, ok) = line_search(z, p, dz, dp, res, need)
             # a stale factorization whose step does not reduce the residual is not applied:
             # the iterate is kept and the next iteration refactors
             accept = ok & (need | start | (rest < res))
+            if opts.anderson and opts.reuse:
+                aa = jax.tree.map(lambda n_, o_: jnp.where(accept, n_, o_), aa_new, aa)
             z, p = jnp.where(accept, zt, z), jnp.where(accept, pt, p)
             ru, g, Cv = jnp.where(accept, rut, ru), jnp.where(accept, gt, g), jnp.where(accept, Cvt, Cv)
             res_new = jnp.where(accept, rest, res)
@@ -463,16 +516,17 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
             # so does a starting iterate that is inadmissible or non-finite
             alive = jnp.where(start, accept, accept | ~need)
             return (z, p, ru, g, Cv, res_new, jnp.where(accept & ~start, res, res_prev), res0, it + 1,
-                    nfac + need.astype(int), fac, jnp.where(start, valid, accept), conv, alive)
+                    nfac + need.astype(int), fac, jnp.where(start, valid, accept), conv, alive, aa)
 
         def cond(c):
-            *_, it, _, _, _, conv, alive = c
+            *_, it, _, _, _, conv, alive, _ = c
             return (~conv) & (it < opts.max_iter) & alive
 
         inf = jnp.asarray(jnp.inf)
         c0 = (z0, p0, jnp.zeros_like(z0), jnp.zeros_like(p0), ctx.state.Cv, inf, inf, inf, jnp.asarray(-1),
-              jnp.asarray(0), fac, jnp.asarray(valid), jnp.asarray(False), jnp.asarray(True))
-        z, p, _, _, Cv, _, _, _, it, nfac, fac, _, conv, _ = jax.lax.while_loop(cond, body, c0)
+              jnp.asarray(0), fac, jnp.asarray(valid), jnp.asarray(False), jnp.asarray(True),
+              _anderson_empty(max(opts.anderson, 1), n_z + n_p))
+        z, p, _, _, Cv, _, _, _, it, nfac, fac, _, conv, _, _ = jax.lax.while_loop(cond, body, c0)
         it = jnp.maximum(it, 0)
         return z, p, it, nfac, conv, fac, Cv
 
