@@ -184,9 +184,10 @@ from typing import Any, Mapping
 
 from dejax import parameters as mp
 
-from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, GEOMETRY_KEYS, GEOMETRY_REQUIRED, MATERIAL_KEYS,
-                     MATERIAL_SCALARS, ROLES, SCENARIOS, SECTIONS, SOLVER_KEYS, TRACE_KEYS, UNIT_KEYS, STRICTLY_POSITIVE,
-                     DataError, check_loading, fmt_list, is_number, suggest)
+from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, GEOMETRY_ALTERNATIVE, GEOMETRY_KEYS, GEOMETRY_OPTIONAL,
+                     GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_SCALARS, ROLES, SCENARIOS, SECTIONS, SOLVER_KEYS,
+                     STRICTLY_POSITIVE, TRACE_KEYS, TRACE_REQUIRED, UNIT_KEYS, DataError, check_loading, fmt_list,
+                     is_number, suggest)
 from .traces import Trace, load_trace_csv
 
 try:
@@ -410,7 +411,7 @@ def load_experiment(path) -> Experiment:
 
 def _load_geometry(tf: _Toml, doc, scenario) -> dict:
     if "geometry" not in doc:
-        if scenario == "uniaxial":
+        if scenario in GEOMETRY_OPTIONAL:
             return {}
         raise DataError(f"missing required section [geometry] for scenario '{scenario}' "
                         f"(keys: {fmt_list(GEOMETRY_KEYS[scenario])})", file=tf.path)
@@ -420,13 +421,14 @@ def _load_geometry(tf: _Toml, doc, scenario) -> dict:
         if k not in allowed:
             raise tf.error(f"unknown key '{k}' in [geometry] for scenario '{scenario}'{suggest(k, allowed)}; "
                            f"allowed: {fmt_list(allowed)}", f"geometry.{k}")
-    required = GEOMETRY_REQUIRED[scenario]
-    if scenario == "block" and "L" not in g:
-        required = ("lx", "ly", "lz")
+    required, hint = GEOMETRY_REQUIRED[scenario], ""
+    if scenario in GEOMETRY_ALTERNATIVE:
+        key, instead, hint = GEOMETRY_ALTERNATIVE[scenario]
+        if key not in g:
+            required = instead
     for k in required:
         if k not in g:
-            raise tf.error(f"missing required key '{k}' for scenario '{scenario}'"
-                           + (" (give L, or all of lx, ly, lz)" if scenario == "block" else ""), "geometry")
+            raise tf.error(f"missing required key '{k}' for scenario '{scenario}'" + hint, "geometry")
     out = {}
     for k, v in g.items():
         if k == "mesh":
@@ -665,7 +667,7 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
         weight = t.get("weight", 1.0)
         if not is_number(weight) or weight < 0:
             raise tf.error(f"'weight' must be a number >= 0, got {weight!r}", "traces.weight")
-        required = ("stretch", "stress") if scenario == "uniaxial" else ("time",)
+        required = TRACE_REQUIRED[scenario]
         try:
             tr = load_trace_csv(csv_path, columns, units, role=role, conditions=conditions, loading=loading,
                                 name=name, weight=weight, required=required)

@@ -34,11 +34,17 @@ GEOMETRY_KEYS = {
     "uniaxial": ("L", "W", "h", "mesh"),
 }
 GEOMETRY_REQUIRED = {
-    "block": (),  # L or lx, ly, lz: checked separately
+    "block": (),  # L or lx, ly, lz: GEOMETRY_ALTERNATIVE
     "rolled": ("h", "r", "L"),
     "torsional": ("L", "W", "h"),
     "uniaxial": (),
 }
+GEOMETRY_ALTERNATIVE = {"block": ("L", ("lx", "ly", "lz"), " (give L, or all of lx, ly, lz)")}
+"""scenario -> (key, the keys required without it, the hint of the message)."""
+GEOMETRY_OPTIONAL = ("uniaxial",)
+"""Scenarios whose [geometry] section may be left out."""
+TRACE_REQUIRED = {"block": ("time",), "rolled": ("time",), "torsional": ("time",), "uniaxial": ("stretch", "stress")}
+"""scenario -> the channels every trace must map."""
 MATERIAL_KEYS = ("mu_inf", "K_inf", "Jm_inf", "eps", "rho", "units")
 MATERIAL_SCALARS = mp.SCALARS  # the TOML keys are the parameter names (dejax.parameters)
 UNIT_KEYS = mp.UNIT_KEYS

@@ -393,4 +393,6 @@ def test_duplicate_trace_names(tmp_path):
 def test_every_registered_scenario_has_a_geometry_schema():
     from fitting import schema
 
-    assert set(schema.GEOMETRY_KEYS) == set(schema.SCENARIOS) == set(schema.GEOMETRY_REQUIRED)
+    assert set(schema.GEOMETRY_KEYS) == set(schema.SCENARIOS) == set(schema.GEOMETRY_REQUIRED) == set(
+        schema.TRACE_REQUIRED)
+    assert set(schema.DYNAMIC_SCENARIOS) | set(schema.GEOMETRY_OPTIONAL) <= set(schema.SCENARIOS)
