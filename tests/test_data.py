@@ -302,6 +302,13 @@ def test_missing_geometry_and_required_keys(tmp_path):
            write(tmp_path, TOML.replace("eps = 3.4e-11\n", "")))
     raises(["exp.toml", "viscous unit 1 lacks 'eta'"], load_experiment,
            write(tmp_path, TOML.replace("eta = 400.0\n", "").replace(', "eta_1"', "").replace("eta_1 = [1.0, 1e4]\n", "")))
+    # the block takes L, or all of lx, ly, lz
+    block = TOML.replace('scenario = "rolled"', 'scenario = "block"').replace("h = 2e-3\nr = 2e-3\nL = 8e-3\n", "lx = 1e-3\n")
+    raises(["exp.toml", "missing required key 'ly' for scenario 'block' (give L, or all of lx, ly, lz)"],
+           load_experiment, write(tmp_path, block))
+    # the uniaxial test may leave [geometry] out
+    doc_u = doc.replace('scenario = "rolled"', 'scenario = "uniaxial"')
+    raises(["exp.toml", "required channel(s) stretch, stress not mapped"], load_experiment, write(tmp_path, doc_u))
 
 
 @pytest.mark.parametrize("old, new, msg", [
