@@ -129,15 +129,16 @@ def gram3(F):
     return jnp.sum(F[:, :, None] * F[:, None, :], axis=0)
 
 
+# adj(A)_ij = cof(A)_ji = A_(j+1)(i+1) A_(j+2)(i+2) - A_(j+1)(i+2) A_(j+2)(i+1) (indices mod 3),
+# as one gather from the flattened matrix (a few traced operations instead of ~50)
+_ADJ_IDX = np.array([[3 * ((j + a) % 3) + (i + b) % 3 for i in range(3) for j in range(3)]
+                     for a, b in ((1, 1), (2, 2), (1, 2), (2, 1))])
+
+
 def _adj3(A):
     """Adjugate (transposed cofactor matrix) of a 3 x 3 matrix: A adj(A) = det(A) I."""
-    return jnp.stack(
-        [
-            jnp.stack([A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1], A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2], A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]]),
-            jnp.stack([A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2], A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0], A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]]),
-            jnp.stack([A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0], A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1], A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]]),
-        ]
-    )
+    t = A.reshape(9)[_ADJ_IDX]  # (4, 9)
+    return (t[0] * t[1] - t[2] * t[3]).reshape(3, 3)
 
 
 # det3 and inv3 carry their derivatives in closed form (d det A = tr(adj(A) dA),
@@ -150,17 +151,14 @@ def _adj3(A):
 @jax.custom_jvp
 def det3(A):
     """Determinant of a 3 x 3 matrix by cofactors (vectorises far better than LAPACK on CPU)."""
-    return (
-        A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
-        - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
-        + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0])
-    )
+    return jnp.sum(A[0] * _adj3(A)[:, 0])
 
 
 @det3.defjvp
 def _det3_jvp(primals, tangents):
     (A,), (dA,) = primals, tangents
-    return det3(A), jnp.sum(_adj3(A).T * dA)
+    adj = _adj3(A)
+    return jnp.sum(A[0] * adj[:, 0]), jnp.sum(adj.T * dA)
 
 
 @jax.custom_jvp

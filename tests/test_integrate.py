@@ -511,3 +511,32 @@ def test_prescribed_motion(block):
     sx, sz = np.asarray(sol.outputs["sx"]), np.asarray(sol.outputs["sz"])
     print(f"\nprescribed stretch {lam}: lateral stretches {sx[-1]:.6f} {sz[-1]:.6f}, expected {lam ** -0.5:.6f}")
     assert abs(sx[-1] - lam**-0.5) < 1e-3 and abs(sz[-1] - lam**-0.5) < 1e-3
+
+
+def test_anderson_mixing_solves_a_linear_fixed_point_in_memory_plus_one_steps():
+    """Modified Newton x <- x - Kt^-1 (K x - b) with a wrong (stale) matrix Kt converges
+    linearly; Anderson mixing with memory m on an m-dimensional linear problem is exact
+    after m + 1 corrections (it is then equivalent to GMRES), up to the 1e-10 relative
+    regularization of its least-squares problem. Reference: numpy's solve."""
+    rng = np.random.default_rng(3)
+    K = np.array([[4.0, 1.0], [1.0, 3.0]])
+    Kt = K + np.array([[1.5, -0.3], [0.2, -1.0]])  # a stale iteration matrix
+    b = rng.standard_normal(2)
+    x_ref = np.linalg.solve(K, b)
+    w = jnp.ones(2)
+
+    def correction(x):
+        return jnp.asarray(np.linalg.solve(Kt, b - K @ np.asarray(x)))
+
+    plain, x = [], jnp.zeros(2)
+    for _ in range(4):
+        x = x + correction(x)
+        plain.append(float(np.linalg.norm(np.asarray(x) - x_ref)))
+    h, x, mixed = it._anderson_empty(2, 2), jnp.zeros(2), []
+    for k in range(4):
+        step, h = it._anderson_mix(h, x, correction(x), w, jnp.asarray(k == 0))
+        x = x + step
+        mixed.append(float(np.linalg.norm(np.asarray(x) - x_ref)))
+    assert plain[-1] > 1e-4 * np.linalg.norm(x_ref)  # the stale iteration is still far
+    assert mixed[2] < 1e-8 * np.linalg.norm(x_ref), mixed
+    assert mixed[3] < 1e-13 * np.linalg.norm(x_ref), mixed
