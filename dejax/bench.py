@@ -203,7 +203,7 @@ def format_table(rows) -> str:
 
 
 def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.json", dt=TUBE_DT, select=(),
-         torsional_mesh=(48, 8, 2), newton_tol=TUBE_NEWTON_TOL, reference=False) -> int:
+         torsional_mesh=(48, 8, 2), newton_tol=TUBE_NEWTON_TOL, reference=False, solver="auto") -> int:
     newton = it.NewtonOptions(tol=newton_tol)
     rows, extra = [], {}
     for c in cases:
@@ -216,9 +216,9 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
         elif c == "B1":
             rows.append(case_B1(max_steps))
         elif c == "R1":
-            rows.append(case_R("R1", (4, 8, 1), max_steps, dt, newton=newton, reference=reference))
+            rows.append(case_R("R1", (4, 8, 1), max_steps, dt, solver=solver, newton=newton, reference=reference))
         elif c == "R2":
-            rows.append(case_R("R2", (12, 20, 4), max_steps, dt, newton=newton, reference=reference))
+            rows.append(case_R("R2", (12, 20, 4), max_steps, dt, solver=solver, newton=newton, reference=reference))
         elif c == "G1":
             rows.append(case_G1(max_steps, dt))
             extra["G1_over_forward"] = rows[-1]["ratio_to_forward"]
@@ -253,10 +253,12 @@ def register(sub):
     p.add_argument("--reference", action="store_true",
                    help="R1, R2: also report the deviation of x_P from a reference run (dt = 1e-4 s, Newton to 1e-10; "
                         "computed once, cached in ~/.cache/dejax/bench)")
+    p.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"),
+                   help="linear solver of the tube cases R1, R2 (pardiso: pip install -e \".[fast]\")")
     p.add_argument("--json", default="bench.json", help="where to write the JSON table")
     p.set_defaults(func=lambda a: main(tuple(c.strip() for c in a.cases.split(",") if c.strip()), a.max_steps,
                                        a.json, a.dt, tuple(s for s in a.select.split(",") if s), a.torsional_mesh,
-                                       a.newton_tol, a.reference))
+                                       a.newton_tol, a.reference, a.solver))
 
 
 def _mesh(text):
