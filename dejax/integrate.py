@@ -861,7 +861,8 @@ def simulate(
     every grid time; it is a static argument (use a hashable callable object to share
     compiled code between calls). ``scheme``: GeneralizedAlpha (default) or QuasiStatic.
     ``control``: step cut-back (StepControl; None = off). ``pad_to`` (>= n) pads the scan
-    with skipped steps so that runs of different lengths share one compilation. The
+    with skipped steps so that runs of different lengths share one compilation; steps of
+    zero length (a grid padded by repeating its last time) are skipped as well. The
     returned Solution carries the status; call ``.check()`` to raise on failure.
 
     Derivatives: the run's primal takes sub-steps where Newton needs them; a
@@ -876,7 +877,9 @@ def simulate(
     if control is not None and control.max_substeps is not None and control.max_substeps < m:
         raise ValueError(f"StepControl.max_substeps = {control.max_substeps} is below the number of steps {m}")
     tt = jnp.concatenate([jnp.asarray(times[1:], dtype=float), jnp.full(m - n, times[-1])])
-    active = jnp.arange(m) < n
+    # steps of zero length are skipped too: a grid padded by repeating its last time (so
+    # that traces of different lengths share one compilation) runs only its real steps
+    active = (jnp.arange(m) < n) & (tt > jnp.concatenate([jnp.asarray(times[:1], dtype=float), tt[:-1]]))
     sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), tt, active, state0, output_fn=output_fn,
                         scheme=scheme, newton=newton, solver=solver, control=control)
     outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)

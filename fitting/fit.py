@@ -140,6 +140,41 @@ def explain_nonfinite(forward, params: Mapping[str, float], target: Target) -> s
     return f"trace {target.name!r}: the simulation completed but its prediction is not finite (check the data)"
 
 
+def _common_shapes(targets) -> dict:
+    """name -> (data, y, mask) with the same array shapes for every trace, so that one
+    compilation of the loss, its gradient and the Jacobian serves them all.
+
+    Every array of ``data`` (time grids, interpolation tables, observation times) and ``y``
+    is padded along its first axis to the longest by repeating its last entry: a time grid
+    then ends in zero-length steps, which ``integrate.simulate`` skips; a table continues
+    constant; ``mask`` (1 real, 0 padded) removes the padded observations from the loss.
+    Traces whose data differ in structure are left as they are."""
+    out = {t.name: (t.data, jnp.asarray(t.y), jnp.ones(t.y.size)) for t in targets}
+    if len(targets) < 2:
+        return out
+    structs = {jax.tree_util.tree_structure(t.data) for t in targets}
+    if len(structs) != 1:
+        return out
+    leaves = [jax.tree_util.tree_leaves(t.data) for t in targets]
+    if any(np.ndim(a) != np.ndim(b) or np.shape(a)[1:] != np.shape(b)[1:] for ls in leaves for a, b in zip(ls, leaves[0])):
+        return out
+    lengths = [max(np.shape(ls[i])[0] if np.ndim(ls[i]) else 0 for ls in leaves) for i in range(len(leaves[0]))]
+    n_obs = max(t.y.size for t in targets)
+
+    def pad(a, n):
+        a = np.asarray(a)
+        if a.ndim == 0 or a.shape[0] == n:
+            return jnp.asarray(a)
+        return jnp.asarray(np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)]))
+
+    treedef = structs.pop()
+    for t, ls in zip(targets, leaves):
+        data = jax.tree_util.tree_unflatten(treedef, [pad(a, n) for a, n in zip(ls, lengths)])
+        mask = jnp.asarray(np.arange(n_obs) < t.y.size, dtype=float)
+        out[t.name] = (data, pad(t.y, n_obs), mask)
+    return out
+
+
 def _fns(forward, free: tuple, fixed: tuple):
     """Jitted (value_and_grad in theta, residual in log p, jacfwd in log p) for one forward."""
     key = (forward, free, fixed)
@@ -342,6 +377,7 @@ def fit(
     targets = list(targets)
     holdout = list(holdout)
     coef = [math.sqrt(t.weight / t.y.size) / t.scale for t in targets]
+    padded = _common_shapes(targets + holdout)  # name -> (data, y, mask): one compilation for all
     lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
 
     n_evals = [0]
@@ -351,7 +387,8 @@ def fit(
         val, g = 0.0, np.zeros_like(theta)
         failing.clear()
         for t, c in zip(targets, coef):
-            v, gi = vg(jnp.asarray(theta), lo_j, hi_j, fixed_vals, t.data, jnp.asarray(t.y), c)
+            data, y, mask = padded[t.name]
+            v, gi = vg(jnp.asarray(theta), lo_j, hi_j, fixed_vals, data, y, c * mask)
             val += float(v)
             g += np.asarray(gi)
             if not np.isfinite(float(v)):
@@ -436,8 +473,9 @@ def fit(
         say("[fit] standard errors: compiling the Jacobian of the residuals ...")
         Js, rs = [], []
         for t, c in zip(targets, coef):
-            Js.append(np.asarray(jac(logp, fixed_vals, t.data, jnp.asarray(t.y), c)))
-            rs.append(np.asarray(resid(logp, fixed_vals, t.data, jnp.asarray(t.y), c)))
+            data, y, mask = padded[t.name]
+            Js.append(np.asarray(jac(logp, fixed_vals, data, y, c * mask))[: t.y.size])
+            rs.append(np.asarray(resid(logp, fixed_vals, data, y, c * mask))[: t.y.size])
         J = np.concatenate(Js)
         r = np.concatenate(rs)
         m = r.size
@@ -459,7 +497,8 @@ def fit(
     for role, group in (("fit", targets), ("holdout", holdout)):
         for t in group:
             # the residual function with y = 0, c = 1 is the prediction (no extra compilation)
-            pr = np.asarray(resid(logp, fixed_vals, t.data, jnp.zeros_like(jnp.asarray(t.y)), 1.0))
+            data, y, mask = padded[t.name]
+            pr = np.asarray(resid(logp, fixed_vals, data, jnp.zeros_like(y), mask))[: t.y.size]
             preds[t.name] = pr
             e = float(np.sqrt(np.mean((pr - t.y) ** 2)))
             rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.scale, n=int(t.y.size), unit=t.unit)

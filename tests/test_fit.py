@@ -149,3 +149,20 @@ def test_failed_simulation_of_a_trace_is_explained_with_time_and_cause():
     t_fail = float(msg.split("t = ")[1].split(" s")[0])
     assert 0.2 <= t_fail <= 0.5
     assert "Gent" in msg or ("Newton" in msg and "try more steps (--steps" in msg)
+
+
+def test_traces_of_different_lengths_share_shapes():
+    """fit._common_shapes pads every trace's arrays to the longest by repeating the last
+    entry and masks the padded observations; the real entries are untouched."""
+    from fitting.fit import Target, _common_shapes
+
+    t1 = Target("a", np.array([1.0, 2.0, 3.0]), {"times": np.linspace(0, 1, 5), "t_obs": np.array([0.0, 0.5, 1.0])})
+    t2 = Target("b", np.array([4.0, 5.0]), {"times": np.linspace(0, 2, 9), "t_obs": np.array([0.0, 2.0])})
+    out = _common_shapes([t1, t2])
+    (d1, y1, m1), (d2, y2, m2) = out["a"], out["b"]
+    assert d1["times"].shape == d2["times"].shape == (9,)
+    np.testing.assert_array_equal(d1["times"], np.r_[np.linspace(0, 1, 5), [1.0] * 4])
+    np.testing.assert_array_equal(y2, [4.0, 5.0, 5.0])
+    np.testing.assert_array_equal(m1, [1, 1, 1])
+    np.testing.assert_array_equal(m2, [1, 1, 0])
+    np.testing.assert_array_equal(d2["t_obs"], [0.0, 2.0, 2.0])

@@ -540,3 +540,19 @@ def test_anderson_mixing_solves_a_linear_fixed_point_in_memory_plus_one_steps():
     assert plain[-1] > 1e-4 * np.linalg.norm(x_ref)  # the stale iteration is still far
     assert mixed[2] < 1e-8 * np.linalg.norm(x_ref), mixed
     assert mixed[3] < 1e-13 * np.linalg.norm(x_ref), mixed
+
+
+def test_zero_length_steps_of_a_padded_grid_are_skipped(block):
+    """A grid padded by repeating its last time (what a fit does so that traces of different
+    lengths share one compilation) gives the run on the unpadded grid, then the final
+    state repeated; no step of zero length is taken (it would divide by h = 0)."""
+    loading = block.loading(8e3, 0.1, 2e-5, 0.1)
+    times = it.time_grid(0.1, 1e-2)
+    padded = np.concatenate([times, np.full(7, times[-1])])
+    a = it.simulate(block.model, loading, times, _block_out, newton=NEWTON_B, pad_to=N_BLOCK - 7).check()
+    b = it.simulate(block.model, loading, padded, _block_out, newton=NEWTON_B, pad_to=N_BLOCK).check()
+    for k in a.outputs:
+        np.testing.assert_array_equal(np.asarray(b.outputs[k])[: times.size], np.asarray(a.outputs[k]))
+        tail = np.asarray(b.outputs[k])[times.size:]
+        np.testing.assert_array_equal(tail, np.broadcast_to(np.asarray(a.outputs[k])[-1], tail.shape))
+    assert np.all(np.asarray(b.iterations)[times.size - 1:] == 0)
