@@ -51,7 +51,8 @@ TUBE_DT = 5e-4
 TUBE_NEWTON_TOL = 1e-4
 
 
-def _reference_path(key: str) -> Path:
+def reference_path(key: str) -> Path:
+    """Where the accuracy reference ``key`` is cached: <cache root>/bench/<key>.npz."""
     from .compile_cache import cache_root
 
     return cache_root() / "bench" / f"{key}.npz"
@@ -60,7 +61,7 @@ def _reference_path(key: str) -> Path:
 def reference_trace(key, problem, t_end, output="x_P"):
     """(time, output) of the accuracy reference of a case (dt = REFERENCE_DT, Newton to
     REFERENCE_TOL), computed once and cached under ``key``."""
-    path = _reference_path(key)
+    path = reference_path(key)
     if path.exists():
         d = np.load(path)
         if abs(float(d["time"][-1]) - t_end) <= 1e-12 * max(1.0, t_end):
@@ -262,6 +263,6 @@ def register(sub):
 
 
 def _mesh(text):
-    from .cli import _mesh_shape
+    from .argtypes import mesh_shape
 
-    return _mesh_shape(text)
+    return mesh_shape(text)

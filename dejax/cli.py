@@ -17,7 +17,6 @@ from pathlib import Path
 from . import compile_cache
 from .argtypes import float_list, mesh_shape, nonneg, positive, positive_int, rho_inf
 
-_mesh_shape = mesh_shape  # the name dejax.bench imports
 
 
 class HelpFormatter(argparse.HelpFormatter):

@@ -17,7 +17,7 @@ Conventions
   coordinates that neighbouring elements share.
 
 The 32 shape functions (paper Eq. 43 with the misprint of the gradient functions
-corrected, see NOTES.md) for node i with corner (xi_i, eta_i, zeta_i) and
+corrected, see docs/paper-notes.md) for node i with corner (xi_i, eta_i, zeta_i) and
 P_i = (1 + xi_i xi)(1 + eta_i eta)(1 + zeta_i zeta) are, with edge lengths
 a = b = c = 2 in parametric units,
 

@@ -7,14 +7,14 @@ Cauchy-Green tensors ``Cv`` (n_units, 3, 3) of the parallel viscous units.
 Batch over Gauss points with ``jax.vmap``. Forces and tangents come from
 ``jax.grad`` / ``jax.jacfwd`` of ``free_energy``; nothing here is hand-derived.
 
-Free energy (NOTES.md, Eqs. 18-20)::
+Free energy (docs/paper-notes.md, Eqs. 18-20)::
 
     psi_inf = -mu_inf Jm_inf / 2 ln(1 - (J^(-2/3) I1 - 3) / Jm_inf)
               + K_inf / 2 (J - 1)^2 - eps / 2 J E^T C^-1 E
     psi_s   = -mu_s Jm_s / 2 ln(1 - (Je^(-2/3) I1e - 3) / Jm_s) + K_s / 2 (Je - 1)^2
     I1e = tr(C Cv_s^-1),  Je = J / sqrt(det Cv_s)
 
-Viscous flow (Eq. 37, cleaned up in NOTES.md)::
+Viscous flow (Eq. 37, cleaned up in docs/paper-notes.md)::
 
     dCv/dt = A (C - tr(C Cv^-1) Cv / 3),   A = (2 mu_s / eta_s) Je^(-2/3) / H_s
 
@@ -441,7 +441,7 @@ def viscous_update(F, Cv_old, dt, mu, eta, Jm):
 
 
 def viscous_rate(F, Cv, mu, eta, Jm):
-    """dCv/dt of the flow rule at (F, Cv) (NOTES.md form of Eq. 37). (3, 3)."""
+    """dCv/dt of the flow rule at (F, Cv) (docs/paper-notes.md form of Eq. 37). (3, 3)."""
     C = gram3(F)
     Je, I1e = _viscous_invariants(F, Cv)
     H = gent_margin(Je ** (-2.0 / 3.0) * I1e, Jm)

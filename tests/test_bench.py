@@ -18,4 +18,4 @@ def test_deviation_is_the_largest_gap_over_the_reference_peak():
 
 def test_reference_cache_lives_under_the_dejax_cache_dir(tmp_path, monkeypatch):
     monkeypatch.setenv("DEJAX_CACHE_DIR", str(tmp_path))
-    assert bench._reference_path("tube-4x8x1") == tmp_path / "bench" / "tube-4x8x1.npz"
+    assert bench.reference_path("tube-4x8x1") == tmp_path / "bench" / "tube-4x8x1.npz"
