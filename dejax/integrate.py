@@ -200,8 +200,9 @@ class NewtonOptions:
       reused factorization, each correction is combined with the last ``anderson``
       iterates' corrections (type-II Anderson mixing of the fixed-point map x -> x + dx
       of the factorization in use; history reset at every refactorization). A fresh
-      factorization's direction is never mixed. Measured on the tube 4x8x1 with a
-      factorization 60 steps old: 1e-6 in 4 iterations instead of 6.
+      factorization's direction is never mixed. Measured on the tube 4x8x1 (dt 5e-4 s,
+      two cycles): 5.03 instead of 5.52 iterations per step at tol 1e-6, 3.40 instead of
+      4.10 at 1e-4, the same x_P.
     predictor: starting iterate of each step: "velocity" (q_n + h v_n, the default: robust
       for quasi-static ramps with large steps), "paper" (Eq. 33, uses the acceleration) or
       "constant" (q_n). The converged solution does not depend on it.
