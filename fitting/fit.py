@@ -140,6 +140,9 @@ def explain_nonfinite(forward, params: Mapping[str, float], target: Target) -> s
     return f"trace {target.name!r}: the simulation completed but its prediction is not finite (check the data)"
 
 
+FORWARD_MODE_MAX_FREE = 4  # up to this many free parameters the fit differentiates in forward mode
+
+
 def _common_shapes(targets) -> dict:
     """name -> (data, y, mask) with the same array shapes for every trace, so that one
     compilation of the loss, its gradient and the Jacobian serves them all.
@@ -176,7 +179,8 @@ def _common_shapes(targets) -> dict:
 
 
 def _fns(forward, free: tuple, fixed: tuple):
-    """Jitted (value_and_grad in theta, residual in log p, jacfwd in log p) for one forward."""
+    """Jitted (value_and_grad in theta, residual in log p, jacfwd in log p, (residual,
+    jacfwd) in log p) for one forward."""
     key = (forward, free, fixed)
     if key in _CACHE:
         return _CACHE[key]
@@ -195,10 +199,15 @@ def _fns(forward, free: tuple, fixed: tuple):
         r = residual_logp(logp, fixed_vals, data, y, c)
         return jnp.sum(r * r)
 
+    def residual_and_jacobian(logp, fixed_vals, data, y, c):
+        J, r = jax.jacfwd(lambda lp: (residual_logp(lp, fixed_vals, data, y, c),) * 2, has_aux=True)(logp)
+        return r, J
+
     fns = (
         jax.jit(jax.value_and_grad(loss_theta)),
         jax.jit(residual_logp),
         jax.jit(jax.jacfwd(residual_logp)),
+        jax.jit(residual_and_jacobian),
     )
     _CACHE[key] = fns
     return fns
@@ -373,7 +382,11 @@ def fit(
         raise ValueError(f"fit: need 0 < lower <= p0 <= upper for every free parameter; got {list(zip(free, lo, p0, hi))}")
     box = LogBox(lo, hi)
     fixed_vals = jnp.asarray([float(params0[k]) for k in fixed]) if fixed else jnp.zeros(0)
-    vg, resid, jac = _fns(forward, free, fixed)
+    vg, resid, jac, resid_jac = _fns(forward, free, fixed)
+    # few free parameters: forward mode gives the residuals and their Jacobian in one program
+    # that serves the loss, its gradient, the covariance and the predictions (one compilation)
+    forward_mode = len(free) <= FORWARD_MODE_MAX_FREE
+    log_lo, log_span = np.log(lo), np.log(hi) - np.log(lo)
     targets = list(targets)
     holdout = list(holdout)
     coef = [math.sqrt(t.weight / t.y.size) / t.scale for t in targets]
@@ -386,9 +399,15 @@ def fit(
     def value_and_grad(theta):
         val, g = 0.0, np.zeros_like(theta)
         failing.clear()
+        sig = 1.0 / (1.0 + np.exp(-np.asarray(theta)))
+        logp = jnp.asarray(log_lo + log_span * sig)
         for t, c in zip(targets, coef):
             data, y, mask = padded[t.name]
-            v, gi = vg(jnp.asarray(theta), lo_j, hi_j, fixed_vals, data, y, c * mask)
+            if forward_mode:
+                r, J = (np.asarray(a) for a in resid_jac(logp, fixed_vals, data, y, c * mask))
+                v, gi = float(r @ r), 2.0 * (J.T @ r) * log_span * sig * (1.0 - sig)
+            else:
+                v, gi = vg(jnp.asarray(theta), lo_j, hi_j, fixed_vals, data, y, c * mask)
             val += float(v)
             g += np.asarray(gi)
             if not np.isfinite(float(v)):
@@ -474,8 +493,12 @@ def fit(
         Js, rs = [], []
         for t, c in zip(targets, coef):
             data, y, mask = padded[t.name]
-            Js.append(np.asarray(jac(logp, fixed_vals, data, y, c * mask))[: t.y.size])
-            rs.append(np.asarray(resid(logp, fixed_vals, data, y, c * mask))[: t.y.size])
+            if forward_mode:
+                r, J = resid_jac(logp, fixed_vals, data, y, c * mask)
+            else:
+                r, J = resid(logp, fixed_vals, data, y, c * mask), jac(logp, fixed_vals, data, y, c * mask)
+            Js.append(np.asarray(J)[: t.y.size])
+            rs.append(np.asarray(r)[: t.y.size])
         J = np.concatenate(Js)
         r = np.concatenate(rs)
         m = r.size
@@ -498,7 +521,9 @@ def fit(
         for t in group:
             # the residual function with y = 0, c = 1 is the prediction (no extra compilation)
             data, y, mask = padded[t.name]
-            pr = np.asarray(resid(logp, fixed_vals, data, jnp.zeros_like(y), mask))[: t.y.size]
+            pr = (resid_jac(logp, fixed_vals, data, jnp.zeros_like(y), mask)[0] if forward_mode
+                  else resid(logp, fixed_vals, data, jnp.zeros_like(y), mask))
+            pr = np.asarray(pr)[: t.y.size]
             preds[t.name] = pr
             e = float(np.sqrt(np.mean((pr - t.y) ** 2)))
             rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.scale, n=int(t.y.size), unit=t.unit)
