@@ -26,8 +26,9 @@ import numpy as np
 
 from . import element as el
 from .constraints import Constraints
-from .material import (Material, backward_euler_flow_step, bdf2_flow_step, bulk_modulus, free_energy, min_gent_margin, mixed_free_energy, mixed_stress_and_update,
-                       mixed_tangent_and_update, stress_and_update, stress_tangent_and_update)
+from .material import (Material, backward_euler_flow_step, bdf2_flow_step, bulk_modulus, free_energy, min_gent_margin,
+                       mixed_free_energy, mixed_stress_and_update, mixed_tangent_and_update, stress_and_update,
+                       stress_tangent_and_update)
 from .mesh import Mesh, Static
 
 
