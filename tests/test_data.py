@@ -10,19 +10,11 @@ import fitting  # noqa: F401
 from fitting.data import Experiment, load_experiment
 from fitting.schema import DataError, loading_voltage
 from fitting.traces import Trace, load_trace_csv
+from helpers import CSV, raises  # noqa: E402  (tests/helpers.py)
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "data" / "examples" / "tube_example.toml"
 
-CSV = """\
-# hand-made trace: time in ms, displacement in mm, voltage in kV
-t_ms,disp_mm,U_kV,note
-0,0.0,0.0,start
-1,0.5,1.5,
-2,1.0,3.0,x
-# a comment between data rows
-3,1.5,4.5,
-"""
 
 TOML = """\
 [experiment]
@@ -73,16 +65,6 @@ def write(tmp_path, toml=TOML, csv=CSV, name="exp.toml", csv_name="run.csv"):
     p = tmp_path / name
     p.write_text(toml)
     return p
-
-
-def raises(match_parts, fn, *args, **kw):
-    """Call fn, expect DataError whose message contains every part."""
-    with pytest.raises(DataError) as info:
-        fn(*args, **kw)
-    msg = str(info.value)
-    for part in match_parts:
-        assert part in msg, f"{part!r} not in message: {msg}"
-    return info.value
 
 
 # ---------------------------------------------------------------------------

@@ -8,17 +8,12 @@ from dejax import model as mdl
 from dejax import outputs as po
 from dejax import scenarios
 from dejax.results import write_h5
+from helpers import rest_state as _rest  # noqa: E402  (tests/helpers.py)
 
 
 @pytest.fixture(scope="module")
 def tube():
     return scenarios.rolled("IV", shape=(1, 4, 1), freq=30.0)
-
-
-def _rest(m):
-    """The reference state at rest (what integrate.initial_state gives without load)."""
-    z = jnp.zeros_like(m.q0)
-    return it.State(t=jnp.asarray(0.0), q=m.q0, v=z, qdd=z, a=z, Cv=mdl.initial_viscous_state(m))
 
 
 def test_plot_writes_pngs(tube, tmp_path):

@@ -5,25 +5,7 @@ import pytest
 
 from fitting.schema import DataError
 from fitting.traces import load_trace_csv
-
-CSV = """\
-# hand-made trace: time in ms, displacement in mm, voltage in kV
-t_ms,disp_mm,U_kV,note
-0,0.0,0.0,start
-1,0.5,1.5,
-2,1.0,3.0,x
-# a comment between data rows
-3,1.5,4.5,
-"""
-
-def raises(match_parts, fn, *args, **kw):
-    """Call fn, expect DataError whose message contains every part."""
-    with pytest.raises(DataError) as info:
-        fn(*args, **kw)
-    msg = str(info.value)
-    for part in match_parts:
-        assert part in msg, f"{part!r} not in message: {msg}"
-    return info.value
+from helpers import CSV, raises  # noqa: E402  (tests/helpers.py)
 
 
 def test_load_trace_csv_defaults_and_units(tmp_path):
