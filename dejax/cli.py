@@ -60,6 +60,9 @@ def _common_solver_args(p, dt: float):
     p.add_argument("--dt-min", type=positive("--dt-min"), default=1e-6,
                    help="smallest step of the cut-back (s, default 1e-6); a failure at dt-min is final")
     p.add_argument("--quasi-static", action="store_true", help="no inertia (equilibrium at every step)")
+    p.add_argument("--flow-update", default="bdf2", choices=("bdf2", "backward-euler"),
+                   help="time discretization of the viscous flow rule: bdf2 (second order, default) or "
+                        "backward-euler (the paper's Eq. 39, first order)")
     p.add_argument("--volumetric", default="mixed", choices=("mixed", "displacement"),
                    help="volumetric treatment: element pressure (mixed, default) or the paper's pointwise penalty")
     p.add_argument("--out", required=True, help="results file (HDF5), written atomically; a failed run writes "
@@ -235,7 +238,7 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         problem.loading,
         times,
         problem.output_fn,
-        problem.scheme(args.rho_inf, True if args.quasi_static else None),
+        problem.scheme(args.rho_inf, True if args.quasi_static else None, args.flow_update),
         it.NewtonOptions(tol=args.newton_tol, criterion=args.newton_criterion, line_search=not args.no_line_search),
         linsolve.choose_solver(problem.model.structure, solver),
         chunk=chunk,
@@ -258,6 +261,7 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         newton_tol=args.newton_tol,
         newton_criterion=args.newton_criterion,
         quasi_static=bool(args.quasi_static or problem.quasi_static),
+        flow_update=args.flow_update,
         dt_min=args.dt_min,
         cutbacks=sol.n_cutbacks,
         dt_smallest=float(sol.dt_smallest),

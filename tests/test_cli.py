@@ -91,3 +91,21 @@ def test_compile_cache_folder_and_switches(tmp_path, monkeypatch):
     monkeypatch.setenv("DEJAX_CACHE_DIR", str(tmp_path / "elsewhere"))
     assert compile_cache.default_dir() == tmp_path / "elsewhere"
     assert cli.build_parser().parse_args(["--no-compile-cache", "verify"]).no_compile_cache
+
+
+def test_flow_update_option_reaches_the_time_scheme():
+    """``dejax run ... --flow-update backward-euler`` selects the paper's Eq. 39 update in the
+    scheme the run uses (default bdf2), for the inertial and the quasi-static stepper."""
+    from dejax import integrate as it
+    from dejax import scenarios
+
+    p = scenarios.block()
+    for argv, want in ((["run", "block", "--out", "x.h5"], "bdf2"),
+                       (["run", "block", "--out", "x.h5", "--flow-update", "backward-euler"], "backward-euler")):
+        a = cli.build_parser().parse_args(argv)
+        assert a.flow_update == want
+        for qs in (None, True):
+            s = p.scheme(a.rho_inf, qs, a.flow_update)
+            assert s.flow_update == want and isinstance(s, it.QuasiStatic if qs else it.GeneralizedAlpha)
+    with pytest.raises(SystemExit):
+        cli.build_parser().parse_args(["run", "block", "--out", "x.h5", "--flow-update", "trapezoid"])

@@ -31,11 +31,14 @@ class Problem:
     rho_inf: float = 0.8
     quasi_static: bool = False
 
-    def scheme(self, rho_inf=None, quasi_static=None):
+    def scheme(self, rho_inf=None, quasi_static=None, flow_update="bdf2"):
         """The time scheme: QuasiStatic if asked (default: the scenario's choice, True for
-        material tests), else generalized-alpha with rho_inf (default the scenario's)."""
+        material tests), else generalized-alpha with rho_inf (default the scenario's);
+        flow_update: the viscous update, "bdf2" or "backward-euler" (the paper's Eq. 39)."""
         qs = self.quasi_static if quasi_static is None else quasi_static
-        return it.QuasiStatic() if qs else it.GeneralizedAlpha(self.rho_inf if rho_inf is None else rho_inf)
+        if qs:
+            return it.QuasiStatic(flow_update=flow_update)
+        return it.GeneralizedAlpha(self.rho_inf if rho_inf is None else rho_inf, flow_update=flow_update)
 
     def simulate(self, t_end, dt, rho_inf=None, newton=it.NewtonOptions(), solver=None, quasi_static=None,
                  control=it.StepControl()) -> it.Solution:
