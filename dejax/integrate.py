@@ -319,14 +319,15 @@ def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0,
 
 
 class _StepContext(eqx.Module):
-    """Everything a step's residual depends on besides the unknowns (differentiable)."""
+    """Everything a step's residual depends on besides the unknowns (differentiable);
+    flow: the flow-rule step data per Gauss point (``model.flow_step``)."""
 
     state: State
     t1: jax.Array
     phi1: jax.Array
     u1: jax.Array
     f_ext: jax.Array
-    flow: FlowStep | None = None
+    flow: FlowStep
 
 
 def _step_terms(model: Model, scheme, ctx: _StepContext, z):
@@ -340,16 +341,11 @@ def _step_terms(model: Model, scheme, ctx: _StepContext, z):
     return q, E, h, mdl.mass_apply(model, qdd1 + model.damping * v1) - ctx.f_ext
 
 
-def _flow(ctx: _StepContext):
-    """The flow-rule step data of the step (backward Euler from the state's Cv without it)."""
-    return ctx.state.Cv if ctx.flow is None else ctx.flow
-
-
 def _residual(model: Model, scheme, ctx: _StepContext, z, p):
     """Eq. (28) at q_{n+1}(z), p: reduced forces (n_free,), element volume residuals
     (n_el, n_p; empty in the displacement form) and the updated Cv."""
     q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
-    fe, g, Cv1 = mdl.element_forces(model, q, E, _flow(ctx), h, p)
+    fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.flow, h, p)
     g = jnp.zeros_like(p) if g is None else g
     return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g, Cv1
 
@@ -357,7 +353,7 @@ def _residual(model: Model, scheme, ctx: _StepContext, z, p):
 def _system(model: Model, scheme, ctx: _StepContext, z, p):
     """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
     q, E, h, _ = _step_terms(model, scheme, ctx, z)
-    sys = mdl.element_system(model, q, E, _flow(ctx), h, p)
+    sys = mdl.element_system(model, q, E, ctx.flow, h, p)
     bp, gp = scheme.matrix_coefficients(h)
     if scheme.inertial:
         sys = eqx.tree_at(lambda s: s.Ke, sys, sys.Ke + (bp + gp * model.damping) * mdl.mass_elements(model))

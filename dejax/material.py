@@ -299,16 +299,15 @@ class FlowStep(eqx.Module):
     dt: jax.Array
 
 
-def _flow_step(base, det_old, dt) -> FlowStep:
-    inv = jax.vmap(inv3)(base)
-    return FlowStep(base, inv, jax.vmap(det3)(base), det_old, dt)
+def _flow_step(base, det_base, det_old, dt) -> FlowStep:
+    return FlowStep(base, jax.vmap(inv3)(base), det_base, det_old, dt)
 
 
 def backward_euler_flow_step(Cv_old, dt) -> FlowStep:
     """FlowStep of the backward-Euler update (Eq. 39) from Cv_old (n_units, 3, 3) over dt (s)."""
     Cv_old = jnp.asarray(Cv_old)
     det_old = jax.vmap(det3)(Cv_old)
-    return _flow_step(Cv_old, det_old, jnp.broadcast_to(jnp.asarray(dt, dtype=Cv_old.dtype), det_old.shape))
+    return _flow_step(Cv_old, det_old, det_old, jnp.broadcast_to(jnp.asarray(dt, dtype=Cv_old.dtype), det_old.shape))
 
 
 def bdf2_flow_step(Cv, Cv_prev, h, h_prev) -> FlowStep:
@@ -334,11 +333,12 @@ def bdf2_flow_step(Cv, Cv_prev, h, h_prev) -> FlowStep:
     m1 = base[:, 0, 0] / Cv[:, 0, 0]
     m2 = (base[:, 0, 0] * base[:, 1, 1] - base[:, 0, 1] * base[:, 1, 0]) / (
         Cv[:, 0, 0] * Cv[:, 1, 1] - Cv[:, 0, 1] * Cv[:, 1, 0])
-    m3 = jax.vmap(det3)(base) / det_old
-    ok = usable & (m1 > 0.25) & (m2 > 0.25 ** 2) & (m3 > 0.25 ** 3)
+    det_base = jax.vmap(det3)(base)
+    ok = usable & (m1 > 0.25) & (m2 > 0.25 ** 2) & (det_base / det_old > 0.25 ** 3)
     base = jnp.where(ok[:, None, None], base, Cv)
+    det_base = jnp.where(ok, det_base, det_old)
     dt = jnp.where(ok, c * h, h)
-    return _flow_step(base, det_old, dt)
+    return _flow_step(base, det_base, det_old, dt)
 
 
 # The scalar equation needs no 3 x 3 algebra inside the iteration. With s = dt A and
