@@ -43,8 +43,9 @@ import numpy as np
 
 from . import model as mdl
 from .linsolve import DenseSolver
-from .material import FlowStep, bulk_modulus, det3
+from .material import FlowStep, bulk_modulus
 from .model import Model
+from .tensor import det3
 
 
 GENT_LOCK_MARGIN = 1e-3

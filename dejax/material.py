@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .tensor import det3, gram3, inv3, mm3
+
 
 class GentLimitError(FloatingPointError):
     """A state reached (or passed) the Gent limiting stretch: ln(1 - ...) is undefined."""
@@ -116,62 +118,6 @@ class Material(eqx.Module):
         if np.any(np.asarray(self.K) < 0):
             raise ValueError(f"Material parameter K = {self.K} must be >= 0")
         return self
-
-
-def mm3(A, B):
-    """A @ B for 3 x 3 matrices as elementwise products and sums: batched over Gauss points,
-    XLA fuses these into the surrounding loop, where a 3 x 3 dot is a call of its own."""
-    return jnp.sum(A[:, :, None] * B[None, :, :], axis=1)
-
-
-def gram3(F):
-    """C = F^T F (3 x 3) elementwise (see ``mm3``)."""
-    return jnp.sum(F[:, :, None] * F[:, None, :], axis=0)
-
-
-# adj(A)_ij = cof(A)_ji = A_(j+1)(i+1) A_(j+2)(i+2) - A_(j+1)(i+2) A_(j+2)(i+1) (indices mod 3),
-# as one gather from the flattened matrix (a few traced operations instead of ~50)
-_ADJ_IDX = np.array([[3 * ((j + a) % 3) + (i + b) % 3 for i in range(3) for j in range(3)]
-                     for a, b in ((1, 1), (2, 2), (1, 2), (2, 1))])
-
-
-def _adj3(A):
-    """Adjugate (transposed cofactor matrix) of a 3 x 3 matrix: A adj(A) = det(A) I."""
-    t = A.reshape(9)[_ADJ_IDX]  # (4, 9)
-    return (t[0] * t[1] - t[2] * t[3]).reshape(3, 3)
-
-
-# det3 and inv3 carry their derivatives in closed form (d det A = tr(adj(A) dA),
-# d A^-1 = -A^-1 dA A^-1): the tangents are then elementwise products, where the
-# derivative of the entry-by-entry formulas would pad every entry's cotangent back into a
-# 3 x 3 array of its own (a separate XLA loop per entry in reverse mode: the stress of
-# Model IV at 864 points compiled to 78 loops before, 30 after).
-
-
-@jax.custom_jvp
-def det3(A):
-    """Determinant of a 3 x 3 matrix by cofactors (vectorises far better than LAPACK on CPU)."""
-    return jnp.sum(A[0] * _adj3(A)[:, 0])
-
-
-@det3.defjvp
-def _det3_jvp(primals, tangents):
-    (A,), (dA,) = primals, tangents
-    adj = _adj3(A)
-    return jnp.sum(A[0] * adj[:, 0]), jnp.sum(adj.T * dA)
-
-
-@jax.custom_jvp
-def inv3(A):
-    """Inverse of a 3 x 3 matrix by the adjugate."""
-    return _adj3(A) / det3(A)
-
-
-@inv3.defjvp
-def _inv3_jvp(primals, tangents):
-    (A,), (dA,) = primals, tangents
-    Ai = inv3(A)
-    return Ai, -mm3(mm3(Ai, dA), Ai)
 
 
 def _safe_log1m(x):
