@@ -274,10 +274,9 @@ def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     states = {k: st for k, st in snaps.items() if k <= rows - 1}  # none past the failure
     err = None
     if not sol.ok:
-        detail = (f"the failing step was cut back {int(np.asarray(sol.cutbacks)[int(sol.fail_step)])} times, down to "
-                  f"dt = {args.dt_min:g} s" if sol.n_cutbacks and int(sol.fail_step) >= 0 else "")
-        detail = "; ".join(d for d in (detail, sol.detail) if d)
-        err = it.SimulationError(it.Status(int(sol.status)), sol.fail_time, int(sol.fail_step) + 1, detail)
+        note = (f"the failing step was cut back {int(np.asarray(sol.cutbacks)[int(sol.fail_step)])} times, down to "
+                f"dt = {args.dt_min:g} s" if sol.n_cutbacks and int(sol.fail_step) >= 0 else "")
+        err = sol.error(note)
         attrs.update(fail_status=err.status.name.lower(), fail_time=err.time, fail_step=err.step,
                      fail_reason=str(err), t_last_converged=float(sol.time[rows - 1]))
         if sol.last_converged is not None:  # the converged sub-step nearest the failure

@@ -56,36 +56,35 @@ change at GPa pressures, which is no physical state of an elastomer."""
 
 
 class Status(enum.IntEnum):
-    """Outcome of a step or a run."""
+    """Outcome of a step or a run, in the manner of diffrax's ``RESULTS``: each member is an
+    integer code (carried through ``lax.scan``, stored by sweeps and benchmarks; 0 = success)
+    with its human-readable ``message``, the one text ``SimulationError`` and the command
+    line's failure reports give. Results files store the name (``fail_status``)."""
 
-    OK = 0
-    NEWTON_FAILED = 1
-    GENT_LIMIT = 2
-    NONFINITE = 3
-    INVERTED = 4
-    INSTABILITY = 5
+    def __new__(cls, code: int, message: str):
+        member = int.__new__(cls, code)
+        member._value_ = code
+        member.message = message
+        return member
 
-    def describe(self) -> str:
-        return {
-            Status.OK: "completed",
-            Status.NEWTON_FAILED: "Newton iterations did not converge (diverging solve; possible "
-            "electromechanical instability or too large a time step)",
-            Status.GENT_LIMIT: f"the Gent limiting stretch was reached (1 - (I1bar - 3)/Jm <= {GENT_LOCK_MARGIN:g})",
-            Status.NONFINITE: "the state became non-finite (NaN or inf)",
-            Status.INVERTED: "an element inverted (det F <= 0)",
-            Status.INSTABILITY: "an equilibrium instability (electromechanical pull-in or snap-through): the "
-            "static tangent lost positive definiteness, so Newton failed at the smallest step",
-        }[self]
+    OK = 0, "completed"
+    NEWTON_FAILED = 1, ("Newton iterations did not converge (diverging solve; possible electromechanical "
+                        "instability or too large a time step)")
+    GENT_LIMIT = 2, f"the Gent limiting stretch was reached (1 - (I1bar - 3)/Jm <= {GENT_LOCK_MARGIN:g})"
+    NONFINITE = 3, "the state became non-finite (NaN or inf)"
+    INVERTED = 4, "an element inverted (det F <= 0)"
+    INSTABILITY = 5, ("an equilibrium instability (electromechanical pull-in or snap-through): the static tangent "
+                      "lost positive definiteness, so Newton failed at the smallest step")
 
 
 class SimulationError(RuntimeError):
-    """A run failed: the message says what failed and at which time."""
+    """A run failed: the message says what failed (``status.message``) and at which time."""
 
     def __init__(self, status: Status, time: float, step: int, detail: str = ""):
         self.status = Status(status)
         self.time = float(time)
         self.step = int(step)
-        msg = f"simulation failed at t = {self.time:.6g} s (step {self.step}): {self.status.describe()}"
+        msg = f"simulation failed at t = {self.time:.6g} s (step {self.step}): {self.status.message}"
         super().__init__(msg + (f"; {detail}" if detail else ""))
 
 
@@ -630,6 +629,7 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
         q_pred = scheme.predict(state, h, opts.predictor)
         p0 = mdl.initial_pressure(model) if state.p is None else state.p
         z, p1, it, nfac, conv, fac, Cv1 = newton(model, ctx, q_pred[s.free], p0, fac, valid)
+        fac = jax.lax.stop_gradient(fac)  # no tangent carried for the factorization
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = scheme.kinematics(state, h, q1)
         new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1, p=p1,
@@ -819,10 +819,19 @@ class Solution:
     def n_cutbacks(self) -> int:
         return 0 if self.cutbacks is None else int(np.sum(np.asarray(self.cutbacks)))
 
+    def error(self, note: str = "") -> SimulationError | None:
+        """The SimulationError of a failed run (None after a success): what failed, when, then
+        ``note`` and ``detail`` (the failure analysis)."""
+        if self.ok:
+            return None
+        detail = "; ".join(d for d in (note, self.detail) if d)
+        return SimulationError(Status(int(self.status)), self.fail_time, int(self.fail_step) + 1, detail)
+
     def check(self) -> "Solution":
         """Raise SimulationError naming what failed and when; return self otherwise."""
-        if not self.ok:
-            raise SimulationError(Status(int(self.status)), self.fail_time, int(self.fail_step) + 1, self.detail)
+        err = self.error()
+        if err is not None:
+            raise err
         return self
 
 
@@ -871,9 +880,11 @@ def simulate(
     zero length (a grid padded by repeating its last time) are skipped as well. The
     returned Solution carries the status; call ``.check()`` to raise on failure.
 
-    Derivatives: the run's primal takes sub-steps where Newton needs them; a
-    differentiated run replays the accepted sub-steps as a fixed grid (one more forward
-    pass) and differentiates each step implicitly, so jvp and grad hold through cut-backs.
+    Derivatives: each step is differentiated implicitly (its custom_jvp). Without
+    ``control`` the scan of steps is differentiated as it stands (one forward pass); with
+    it, the primal takes sub-steps where Newton needs them and a differentiated run replays
+    the accepted sub-steps as a fixed grid (one more forward pass), so jvp and grad hold
+    through cut-backs.
     """
     times = np.asarray(times, dtype=float) if not isinstance(times, jax.core.Tracer) else times
     n = times.shape[0] - 1
@@ -896,17 +907,20 @@ def simulate(
 @eqx.filter_jit
 def _simulate_jit(model, loading, t0, times, active, state0, *, output_fn, scheme, newton, solver, control):
     s0 = initial_state(model, loading, t0) if state0 is None else state0
-    res = _run(model, loading, s0, times, active, output_fn=output_fn, scheme=scheme, newton=newton, solver=solver,
-               control=control)
+    # without cut-back the scan itself is differentiated (each step implicitly, through its
+    # custom_jvp); with cut-back the run's own rule replays the accepted sub-steps
+    run = _run_fixed if control is None else _run
+    res = run(model, loading, s0, times, active, output_fn=output_fn, scheme=scheme, newton=newton, solver=solver,
+              control=control)
     out0 = output_fn(model, loading, s0)
     outputs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), out0, res["outputs"])
     return Solution(times, outputs, res["iterations"], res["factorizations"], res["status"], res["fail_step"],
                     res["final"], res["cutbacks"], res["dt_smallest"], res["last_good"])
 
 
-@eqx.filter_custom_jvp
-def _run(model, loading, s0, times, active, *, output_fn, scheme, newton, solver, control):
-    """Primal run over the grid ``times`` (m,), with cut-back where ``control`` allows."""
+def _run_fixed(model, loading, s0, times, active, *, output_fn, scheme, newton, solver, control):
+    """Run over the grid ``times`` (m,), with cut-back where ``control`` allows; without
+    ``control`` it is differentiated as it stands (a scan of implicitly differentiated steps)."""
     step = make_step(scheme, newton, solver)
     budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0]))
     carry = initial_carry(model, s0, step.solver, budget)
@@ -914,6 +928,14 @@ def _run(model, loading, s0, times, active, *, output_fn, scheme, newton, solver
     return dict(outputs=outs, iterations=its, factorizations=nfac, cutbacks=ncut, status=carry.status,
                 fail_step=carry.fail_step, final=carry.state, dt_smallest=carry.h_smallest, schedule=carry.schedule,
                 n_sub=carry.n_sub, last=last, last_good=carry.last_good)
+
+
+@eqx.filter_custom_jvp
+def _run(model, loading, s0, times, active, *, output_fn, scheme, newton, solver, control):
+    """``_run_fixed`` with cut-back: its derivative replays the accepted sub-steps as a
+    fixed grid (the sub-step loop is a while loop, which reverse mode cannot differentiate)."""
+    return _run_fixed(model, loading, s0, times, active, output_fn=output_fn, scheme=scheme, newton=newton,
+                      solver=solver, control=control)
 
 
 @_run.def_jvp

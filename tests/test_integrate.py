@@ -440,6 +440,27 @@ def _check_failure_report(sol):
     return err
 
 
+def test_status_codes_and_messages():
+    """The integer codes are stored (sweeps, benchmarks) and must not move; each outcome has
+    its own message, which SimulationError and Solution.error give with the time and step."""
+    assert {s.name: int(s) for s in it.Status} == dict(OK=0, NEWTON_FAILED=1, GENT_LIMIT=2, NONFINITE=3,
+                                                         INVERTED=4, INSTABILITY=5)
+    assert it.Status(2) is it.Status.GENT_LIMIT and it.Status.GENT_LIMIT == 2
+    messages = [s.message for s in it.Status]
+    assert len(set(messages)) == len(messages) and all(messages)
+    for status, word in _KEYWORDS.items():
+        assert word in status.message
+    err = it.SimulationError(it.Status.INVERTED, 0.25, 3, "more")
+    assert str(err) == f"simulation failed at t = 0.25 s (step 3): {it.Status.INVERTED.message}; more"
+    t = np.linspace(0.0, 0.3, 4)
+    sol = it.Solution(t, {}, np.zeros(3), np.zeros(3), np.asarray(4), np.asarray(1), None, detail="analysis")
+    assert str(sol.error("note")) == str(it.SimulationError(it.Status.INVERTED, 0.2, 2, "note; analysis"))
+    with pytest.raises(it.SimulationError, match=r"t = 0.2 s \(step 2\): an element inverted .*; analysis$"):
+        sol.check()
+    ok = it.Solution(t, {}, np.zeros(3), np.zeros(3), np.asarray(0), np.asarray(-1), None)
+    assert ok.error("note") is None and ok.check() is ok
+
+
 def test_failure_past_gent_limit(block):
     """Stretching the face y = L to 5 L passes the Gent limit (uniaxial, incompressible:
     lambda^2 + 2/lambda - 3 = Jm, lambda_lock = 4.186 for Jm = 15): the run must fail,
