@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import model as mdl
-from .linsolve import DenseSolver
+from .linsolve import DenseSolver, LinearSolver
 from .material import FlowStep, bulk_modulus
 from .model import Model
 from .tensor import det3
@@ -431,7 +431,7 @@ def _anderson_mix(h: _Anderson, x, f, w, reset):
     return step, _Anderson(dX, dF, count, x, f)
 
 
-def _make_newton(scheme, opts: NewtonOptions, solver):
+def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
     """Newton solve of one step: ``newton(model, ctx, z0, p0, fac, valid) -> (z, p,
     iterations, factorizations, converged, fac, Cv)``; fac is the factorization in use at
     the end (handed to the next step), Cv the viscous state at the solution (from its
@@ -554,7 +554,7 @@ def _make_newton(scheme, opts: NewtonOptions, solver):
     return newton
 
 
-def _implicit_solve(model: Model, solver, sys, dru, dg):
+def _implicit_solve(model: Model, solver: LinearSolver, sys, dru, dg):
     """Solve the step's linearized equations J (dz, dp) = -(dru, dg) exactly (differentiable,
     transposable): condensed for finite K; for K = inf a condensed solve with K_aug refined
     by three sweeps of iterative refinement against the exact saddle-point operator."""
@@ -606,11 +606,11 @@ def _zero_tangent(x):
     return jax.tree_util.tree_map(leaf, x)
 
 
-def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), solver=None):
+def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), solver: LinearSolver | None = None):
     """Return ``step(model, loading, state, t1, fac, valid) -> (state1, iterations,
     factorizations, status, fac1)``: one step (no cut-back) from state.t to t1.
-    ``scheme``: GeneralizedAlpha or QuasiStatic; ``solver``: a linsolve solver (default
-    DenseSolver)."""
+    ``scheme``: GeneralizedAlpha or QuasiStatic; ``solver``: a ``linsolve.LinearSolver``
+    (default DenseSolver)."""
     solver = DenseSolver() if solver is None else solver
     newton = _make_newton(scheme, opts, solver)
 
@@ -678,14 +678,14 @@ class Carry(eqx.Module):
     last_good: State
 
 
-def _empty_fac(model: Model, solver):
+def _empty_fac(model: Model, solver: LinearSolver):
     if not model.structure.mixed:
         return (solver.empty(model),)
     n_el, n_p = model.dV.shape[0], model.structure.n_pressure
     return solver.empty(model), jnp.zeros((n_el, n_p, 96)), -jnp.broadcast_to(jnp.eye(n_p), (n_el, n_p, n_p))
 
 
-def initial_carry(model: Model, state: State, solver, max_substeps: int = 0) -> Carry:
+def initial_carry(model: Model, state: State, solver: LinearSolver, max_substeps: int = 0) -> Carry:
     inf = jnp.asarray(jnp.inf)
     return Carry(state, jnp.asarray(0), jnp.asarray(-1), jnp.asarray(0), _empty_fac(model, solver), jnp.asarray(False),
                  inf, inf, inf, jnp.zeros(max_substeps), jnp.asarray(0), state)
@@ -864,7 +864,7 @@ def simulate(
     output_fn: Callable,
     scheme=GeneralizedAlpha(),
     newton: NewtonOptions = NewtonOptions(),
-    solver=None,
+    solver: LinearSolver | None = None,
     state0: State | None = None,
     pad_to: int | None = None,
     control: StepControl | None = StepControl(),
@@ -977,7 +977,7 @@ def run_chunked(
     output_fn: Callable,
     scheme=GeneralizedAlpha(),
     newton: NewtonOptions = NewtonOptions(),
-    solver=None,
+    solver: LinearSolver | None = None,
     chunk: int = 500,
     progress: Callable | None = None,
     snapshot_times=(),

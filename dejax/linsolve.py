@@ -1,31 +1,56 @@
-"""Linear solvers for the Newton iteration matrix, behind one interface.
+"""Linear solvers for the Newton iteration matrix, behind one interface (``LinearSolver``).
 
-A solver provides
-
-* ``factor(model, Ke) -> fac``: factorize the assembled reduced matrix T^T K T of
-  the element matrices ``Ke`` (n_el, 96, 96) (a pytree that can be carried
-  through ``lax.scan`` and reused over Newton iterations and steps);
-* ``empty(model) -> fac``: a placeholder of the same structure;
-* ``solve_factored(model, fac, rhs)``: solve with a (possibly stale) factorization;
-* ``solve(model, Ke, rhs)``: an exact, differentiable solve (jvp and transpose),
-  used by the implicit derivative of each step.
+The time stepper (``dejax.integrate``) factorizes the reduced iteration matrix T^T K T
+of the element matrices, carries the factorization through ``lax.scan`` and reuses it
+over Newton iterations and steps, and solves exactly (differentiably) for the implicit
+derivative of each step. ``DenseSolver`` (LU) serves small and fit-scale meshes,
+``SparseSolver`` (SuperLU or MKL Pardiso on the host) large ones; ``choose_solver`` picks
+one by name or by size.
 """
 from __future__ import annotations
 
+import abc
 import concurrent.futures
-import dataclasses
 import functools
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import model as mdl
+from .mesh import content_key
 
 
-@dataclasses.dataclass(frozen=True)
-class DenseSolver:
+class LinearSolver(eqx.Module):
+    """What the time stepper needs of a linear solver of the reduced iteration matrix
+    A = T^T K T. Arguments: ``model`` (``dejax.model.Model``; n_free =
+    ``model.structure.n_free`` reduced unknowns), ``Ke`` the element iteration matrices
+    (n_el, 96, 96), ``rhs`` (n_free,) (many right-hand sides: ``jax.vmap``). Solvers hold
+    static fields only, so that equal solvers hash equal and share one compiled stepper."""
+
+    @abc.abstractmethod
+    def factor(self, model, Ke):
+        """A factorization of A: a pytree of arrays, carried through ``lax.scan`` and reused
+        over Newton iterations and steps."""
+
+    @abc.abstractmethod
+    def empty(self, model):
+        """A placeholder with the pytree structure, shapes and dtypes of ``factor``'s result."""
+
+    @abc.abstractmethod
+    def solve_factored(self, model, fac, rhs):
+        """x (n_free,) with A x = rhs, A the matrix ``fac`` factorizes (possibly that of an
+        earlier iterate or step). Not differentiated: Newton directions only."""
+
+    @abc.abstractmethod
+    def solve(self, model, Ke, rhs):
+        """x (n_free,) with A x = rhs, A assembled from ``Ke``: exact and differentiable in
+        ``Ke`` and ``rhs`` (jvp and transpose), for the implicit derivative of a step."""
+
+
+class DenseSolver(LinearSolver):
     """Dense solver of the assembled matrix: for small and fit-scale meshes (up to a few
     thousand unknowns). The iteration matrix is symmetric for every material option
     (viscous dCv/dF and condensed pressures included; tests/test_model.py asserts it),
@@ -88,9 +113,7 @@ _PATTERNS: dict = {}
 
 
 def _pattern(structure) -> _Pattern:
-    from .mesh import _content_key
-
-    key = _content_key((structure.edofs, structure.col))
+    key = content_key((structure.edofs, structure.col))
     p = _PATTERNS.get(key)
     if p is None:
         p = _PATTERNS[key] = _Pattern(structure)
@@ -177,8 +200,7 @@ def _available_backend(requested: str) -> str:
     return "superlu"
 
 
-@dataclasses.dataclass(frozen=True)
-class SparseSolver:
+class SparseSolver(LinearSolver):
     """Sparse direct solver for large meshes.
 
     The sparsity pattern of T^T K T is static (from the connectivity, numpy, once); the
@@ -190,7 +212,7 @@ class SparseSolver:
     wrapped in ``jax.lax.custom_linear_solve`` (symmetric) so jvp, vjp and vmap work.
     """
 
-    backend: str = "superlu"
+    backend: str = eqx.field(default="superlu", static=True)
 
     def _values(self, model, Ke):
         p = _pattern(model.structure)
@@ -246,7 +268,7 @@ def pardiso_available() -> bool:
     return True
 
 
-def choose_solver(structure, which: str = "auto"):
+def choose_solver(structure, which: str = "auto") -> LinearSolver:
     """``"dense"``, ``"sparse"`` (SuperLU), ``"pardiso"`` or ``"auto"``: dense LU up to 2,500
     reduced unknowns (measured faster there), SuperLU (COLAMD) above. ``"pardiso"`` (MKL,
     ``pip install -e ".[fast]"``) factorizes the paper's tube 8x faster, but whole runs

@@ -36,19 +36,21 @@ import numpy as np
 from .element import NODE_CORNERS
 
 
-def _content_key(value):
-    """A hashable key describing ``value`` by content (numpy arrays by shape, dtype, bytes)."""
+def content_key(value):
+    """A hashable key describing ``value`` by content: numpy arrays by shape, dtype and bytes,
+    dicts, lists, tuples and dataclasses by their items; equal contents give equal keys
+    (what ``Static`` compares, and what caches of per-topology data are keyed by)."""
     import dataclasses
     import hashlib
 
     if isinstance(value, np.ndarray):
         return ("nd", value.shape, str(value.dtype), hashlib.sha1(np.ascontiguousarray(value).tobytes()).hexdigest())
     if isinstance(value, dict):
-        return ("dict", tuple(sorted((k, _content_key(v)) for k, v in value.items())))
+        return ("dict", tuple(sorted((k, content_key(v)) for k, v in value.items())))
     if isinstance(value, (list, tuple)):
-        return (type(value).__name__, tuple(_content_key(v) for v in value))
+        return (type(value).__name__, tuple(content_key(v) for v in value))
     if dataclasses.is_dataclass(value):
-        return (type(value).__name__, tuple((f.name, _content_key(getattr(value, f.name))) for f in dataclasses.fields(value)))
+        return (type(value).__name__, tuple((f.name, content_key(getattr(value, f.name))) for f in dataclasses.fields(value)))
     try:
         hash(value)
         return value
@@ -64,7 +66,7 @@ class Static:
 
     def __init__(self, value: Any):
         self.value = value
-        self._key = _content_key(value)
+        self._key = content_key(value)
 
     def __hash__(self):
         return hash(self._key)

@@ -125,3 +125,30 @@ def test_sparse_factorizations_through_the_callback_are_freed():
     for k in range(30):
         jax.block_until_ready(solve(values * (1.0 + 1e-3 * (k + 10)), b))
     assert _rss_bytes() - before < 200e6
+
+
+def test_every_solver_offers_the_linear_solver_interface():
+    """choose_solver returns LinearSolver modules: abstract base, equal solvers hash equal
+    (one compiled stepper), and ``empty`` has the structure of ``factor`` (carried through
+    lax.scan in its place)."""
+    from dejax import model as mdl
+
+    with pytest.raises(TypeError, match="abstract"):
+        linsolve.LinearSolver()
+
+    class Partial(linsolve.LinearSolver):
+        def factor(self, model, Ke):
+            return Ke
+
+    with pytest.raises(TypeError, match="abstract"):
+        Partial()
+    m = scenarios.block(shape=(1, 1, 1)).model
+    Ke = mdl.element_tangents(m, m.q0, mdl.nominal_field(m, jnp.zeros(1)), mdl.initial_viscous_state(m), 1e-3)[1]
+    for which in ("auto", "dense", "sparse", "pardiso"):
+        solver = linsolve.choose_solver(m.structure, which)
+        assert isinstance(solver, linsolve.LinearSolver)
+        again = linsolve.choose_solver(m.structure, which)
+        assert solver == again and hash(solver) == hash(again) and not jax.tree_util.tree_leaves(solver)
+        shape = lambda tree: jax.tree_util.tree_map(lambda a: (a.shape, a.dtype), tree)  # noqa: E731
+        assert shape(solver.empty(m)) == shape(solver.factor(m, Ke)), which
+    assert linsolve.SparseSolver("pardiso") != linsolve.SparseSolver()

@@ -362,3 +362,15 @@ def test_face_nodes():
     np.testing.assert_array_equal(np.sort(M.face_nodes(m, 0, 0.0)), np.sort(m.nodes("x0")))
     with pytest.raises(ValueError, match="no node"):
         M.face_nodes(m, 1, 0.3e-3)
+
+
+def test_content_key_and_static_compare_by_content():
+    """Equal topologies built twice share one compiled program: keys by content, not identity."""
+    a = np.arange(6, dtype=np.int64).reshape(2, 3)
+    same = {"c": a.copy(), "n": [np.arange(2)]}
+    assert M.content_key({"c": a, "n": [np.arange(2)]}) == M.content_key(same)
+    assert hash(M.Static(same)) == hash(M.Static({"c": a, "n": [np.arange(2)]}))
+    assert M.Static(same) == M.Static({"c": a, "n": [np.arange(2)]})
+    for other in (a.astype(np.int32), a.reshape(3, 2), a + 1, (a,)):
+        assert M.content_key(other) != M.content_key(a)
+    assert M.Static(a) != M.Static(a + 1)
