@@ -13,14 +13,18 @@ diagnosis use these names; results files store ``fields`` (the unit parameters a
   structure, so compiled code is reused);
 * ``fields(material)``: the results-file attributes (``mu``, ``K``, ``Jm``, ``eta`` as
   arrays over the units);
+* ``to_vector(params, names)`` / ``from_vector(p, names, base)``: the vector (k,) of the
+  values of k names, in their order (what fits and sensitivities differentiate: Jacobian
+  columns and covariances follow the names), and back to a dict;
 * ``unit(name)``: the SI unit of a name.
 """
 from __future__ import annotations
 
 import re
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -100,6 +104,26 @@ def fields(material: Material) -> dict:
     """The material as results-file attributes: the five scalars and ``mu``, ``K``, ``Jm``,
     ``eta`` (arrays over the units)."""
     return {k: getattr(material, k) for k in SCALARS + UNIT_KEYS}
+
+
+def to_vector(params: Mapping[str, Any], names: Sequence[str]) -> jax.Array:
+    """(k,) float array of the values of the k ``names`` in ``params``, in that order (values
+    may be traced). Names need not be material parameters (a sensitivity adds the geometry
+    h, L, r). KeyError naming the names without a value."""
+    missing = [k for k in names if k not in params]
+    if missing:
+        raise KeyError(f"no value for parameter(s) {', '.join(map(repr, missing))}")
+    return jnp.stack([jnp.asarray(params[k], dtype=float) for k in names]) if len(names) else jnp.zeros(0)
+
+
+def from_vector(p, names: Sequence[str], base: Mapping[str, Any] | None = None) -> dict:
+    """``base`` (name -> value, default empty) with the values of ``names`` set to the entries
+    of ``p`` (k,), which may be traced: the inverse of ``to_vector``."""
+    if jnp.shape(p) != (len(names),):
+        raise ValueError(f"parameter vector of shape {jnp.shape(p)} for {len(names)} names {list(names)}")
+    out = dict(base or {})
+    out.update({k: p[i] for i, k in enumerate(names)})
+    return out
 
 
 def unit(name: str) -> str:

@@ -80,8 +80,7 @@ def check_names(names, params):
 def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
     """Outputs (see the module docstring) for parameter vector ``p`` (values of ``names``),
     other parameters from ``base``."""
-    vals = dict(base)
-    vals.update({k: p[i] for i, k in enumerate(names)})
+    vals = parameters.from_vector(p, names, base)
     prob = scenarios.rolled(setup.model, freq=setup.freq, phi_max=setup.phi_max, h=vals["h"], r=vals["r"], L=vals["L"],
                             shape=setup.shape)
     mat_p = {k: v for k, v in vals.items() if k not in GEOMETRY}
@@ -131,7 +130,7 @@ def sensitivity(params: dict, names, setup: Setup = Setup(), timing: bool = True
     names = tuple(names)
     check_names(names, params)
     base = {k: float(v) for k, v in params.items()}
-    p = jnp.asarray([base[k] for k in names])
+    p = parameters.to_vector(base, names)
     fv, fj = _compiled(names, setup, "value"), _compiled(names, setup, "jac")
     tic = _time.perf_counter()
     vals = _block(fv(p, base))
@@ -157,7 +156,7 @@ def finite_differences(params: dict, names, setup: Setup = Setup(), rel_step: fl
     """Central differences of ``outputs`` (same compiled forward function): name -> (.., k)."""
     names = tuple(names)
     base = {k: float(v) for k, v in params.items()}
-    p = np.asarray([base[k] for k in names])
+    p = np.asarray(parameters.to_vector(base, names))
     fv = _compiled(names, setup, "value")
     cols = []
     for i in range(len(names)):

@@ -54,3 +54,22 @@ def test_fields_are_the_results_file_attributes():
 def test_units():
     assert P.unit("eta_2") == "Pa s" and P.unit("c_d") == "1/s" and P.unit("Jm_1") == "1"
     assert P.unit("mu_inf") == "Pa" and P.unit("eps") == "F/m"
+
+
+def test_vector_of_named_values_round_trips_in_the_order_of_the_names():
+    names = ("eta_2", "h", "mu_inf")  # any names, in the caller's order (a sensitivity's geometry too)
+    params = dict(TWO_UNITS, h=2e-3)
+    p = P.to_vector(params, names)
+    assert p.dtype == jnp.float64 and p.shape == (3,)
+    np.testing.assert_array_equal(p, [2e4, 2e-3, 20e3])
+    back = P.from_vector(p * 2, names, params)
+    assert float(back["eta_2"]) == 4e4 and float(back["h"]) == 4e-3 and float(back["mu_inf"]) == 40e3
+    assert back["K_inf"] == params["K_inf"] and params["eta_2"] == 2e4  # base unchanged
+    assert P.to_vector(params, ()).shape == (0,) and P.from_vector(jnp.zeros(0), (), params) == params
+    with pytest.raises(KeyError, match="'nope', 'c_d'"):
+        P.to_vector(params, ("mu_1", "nope", "c_d"))
+    with pytest.raises(ValueError, match="for 2 names"):
+        P.from_vector(jnp.ones(3), ("mu_1", "eta_1"))
+    # differentiable end to end: vector -> dict -> Material
+    f = lambda v: P.from_flat(P.from_vector(v, ("mu_1", "eta_2"), TWO_UNITS), 2).eta.sum() * v[0]  # noqa: E731
+    np.testing.assert_allclose(jax.grad(f)(jnp.asarray([3.0, 5.0])), [3e3 + 5.0, 3.0])
