@@ -46,7 +46,7 @@ def fit_handler(args) -> int:
     try:
         res = experiment.run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps,
                                         lbfgs_steps=args.lbfgs_steps, n_steps=args.steps, max_points=args.max_points,
-                                        verbose=not args.quiet, plots=not args.no_plots)
+                                        verbose=not args.quiet, plots=not args.no_plots, optimizer=args.optimizer)
     except (DataError, ValueError, KeyError, FileNotFoundError) as e:
         print(f"dejax fit: error: {e}", file=sys.stderr)
         return 2
@@ -67,10 +67,14 @@ def register_fit(subparsers) -> argparse.ArgumentParser:
                                           "traces; report held-out errors; write fit.json and PNGs to --out.")
     p.add_argument("experiment", help="experiment TOML file")
     p.add_argument("--out", default=None, help="output folder (fit.json, PNG plots)")
+    p.add_argument("--optimizer", choices=("lm", "adam-lbfgs"), default=None,
+                   help="Levenberg-Marquardt on the forward-mode Jacobian (at most max_iter evaluations), or "
+                        "optax Adam then L-BFGS (default: [fit] optimizer, else lm; adam-lbfgs when --adam-steps "
+                        "or --lbfgs-steps is given)")
     p.add_argument("--adam-steps", type=int_at_least("--adam-steps", 0), default=None,
-                   help="Adam iterations (default: max_iter / 2)")
+                   help="Adam iterations of adam-lbfgs (default: max_iter / 2)")
     p.add_argument("--lbfgs-steps", type=int_at_least("--lbfgs-steps", 0), default=None,
-                   help="L-BFGS iterations (default: the rest of max_iter)")
+                   help="L-BFGS iterations of adam-lbfgs (default: the rest of max_iter)")
     p.add_argument("--steps", type=int_at_least("--steps", 1), default=None,
                    help="time steps per trace (default: from the data / [solver] dt)")
     p.add_argument("--max-points", type=int_at_least("--max-points", 2), default=None,

@@ -185,7 +185,7 @@ from typing import Any, Mapping
 from dejax import parameters as mp
 
 from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, GEOMETRY_ALTERNATIVE, GEOMETRY_KEYS, GEOMETRY_OPTIONAL,
-                     GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_SCALARS, ROLES, SCENARIOS, SECTIONS, SOLVER_KEYS,
+                     GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_SCALARS, OPTIMIZERS, ROLES, SCENARIOS, SECTIONS, SOLVER_KEYS,
                      STRICTLY_POSITIVE, TRACE_KEYS, TRACE_REQUIRED, UNIT_KEYS, DataError, check_loading, fmt_list,
                      is_number, suggest)
 from .traces import Trace, load_trace_csv
@@ -594,7 +594,10 @@ def _load_fit(tf: _Toml, doc, params: dict, material) -> FitSpec:
         if k == "scale":
             if v not in ("log", "linear"):
                 raise tf.error(f"'scale' must be \"log\" or \"linear\", got {v!r}", key)
-        elif k in ("loss", "optimizer"):
+        elif k == "optimizer":
+            if v not in OPTIMIZERS:
+                raise tf.error(f"'optimizer' must be one of {', '.join(map(repr, OPTIMIZERS))}, got {v!r}", key)
+        elif k == "loss":
             if not isinstance(v, str):
                 raise tf.error(f"'{k}' must be a string, got {v!r}", key)
         elif k == "features":

@@ -275,17 +275,24 @@ scenarios ``dejax fit`` supports."""
 
 
 def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=None, max_points=None,
-                   verbose=True, plots=True):
-    """Load an experiment TOML, fit it, write outputs; return the FitResult."""
+                   verbose=True, plots=True, optimizer=None):
+    """Load an experiment TOML, fit it, write outputs; return the FitResult.
+
+    ``optimizer``: "lm" or "adam-lbfgs" (default: the file's ``[fit] optimizer``, else "lm";
+    "adam-lbfgs" when ``adam_steps`` or ``lbfgs_steps`` is given). ``[fit] max_iter`` bounds
+    the evaluations of lm and the iterations of adam-lbfgs (half Adam, half L-BFGS)."""
     from .data import load_experiment
 
     exp = load_experiment(path)
     fwd, params0, free, bounds, targets, holdout, opts = from_experiment(exp, n_steps=n_steps, max_points=max_points)
     max_iter = int(opts.get("max_iter", 40))
+    if optimizer is None:
+        steps_given = adam_steps is not None or lbfgs_steps is not None
+        optimizer = opts.get("optimizer", "adam-lbfgs" if steps_given else "lm")
     a = adam_steps if adam_steps is not None else max_iter // 2
     b = lbfgs_steps if lbfgs_steps is not None else max_iter - a
     res = fit(fwd, params0, free, bounds, targets, holdout, adam_steps=a, lbfgs_steps=b,
-              adam_lr=float(opts.get("learning_rate", 0.1)), verbose=verbose)
+              adam_lr=float(opts.get("learning_rate", 0.1)), verbose=verbose, method=optimizer, max_evals=max_iter)
     if out is not None:
         res.save(out, plots=plots)
     return res

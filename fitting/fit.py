@@ -53,6 +53,8 @@ import optax
 
 from dejax import parameters
 
+from .schema import OPTIMIZERS
+
 __all__ = ["Target", "FitResult", "fit", "apply_params", "LogBox"]
 
 
@@ -141,6 +143,8 @@ def explain_nonfinite(forward, params: Mapping[str, float], target: Target) -> s
 
 
 FORWARD_MODE_MAX_FREE = 4  # up to this many free parameters the fit differentiates in forward mode
+METHODS = OPTIMIZERS
+"""Optimizers of ``fit``: Levenberg-Marquardt (``fitting.least_squares``) or optax Adam then L-BFGS."""
 
 
 def _common_shapes(targets) -> dict:
@@ -362,8 +366,15 @@ def fit(
     verbose: bool = True,
     print_fn: Callable = print,
     covariance: bool = True,
+    method: str = "lm",
+    max_evals: int = 30,
 ) -> FitResult:
-    """Fit ``free`` parameters of ``params0`` to ``targets`` (see the module docstring)."""
+    """Fit ``free`` parameters of ``params0`` to ``targets`` (see the module docstring).
+
+    ``method``: "lm" (Levenberg-Marquardt in log p on the forward-mode Jacobian, at most
+    ``max_evals`` evaluations) or "adam-lbfgs" (``adam_steps`` + ``lbfgs_steps``)."""
+    if method not in METHODS:
+        raise ValueError(f"fit: method must be one of {', '.join(METHODS)}, got {method!r}")
     tic = _time.perf_counter()
     free = tuple(free)
     if not free:
@@ -393,6 +404,10 @@ def fit(
     padded = _common_shapes(targets + holdout)  # name -> (data, y, mask): one compilation for all
     lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
 
+    def say(msg):
+        if verbose:
+            print_fn(msg)
+
     n_evals = [0]
     failing = []  # names of the traces whose loss was not finite at the last evaluation
 
@@ -417,10 +432,9 @@ def fit(
             return np.inf, np.zeros_like(theta)
         return val, g
 
-    def say(msg):
-        if verbose:
-            print_fn(msg)
-
+    if method == "lm":
+        return _fit_lm(forward, resid_jac, free, params0, p0, lo, hi, fixed_vals, targets, holdout, coef, padded,
+                       max_evals, tol, covariance, say, tic)
     theta = box.to_theta(p0)
     say(f"[fit] compiling the forward model and its gradient, first evaluation on {len(targets)} trace(s) ...")
     f, g = value_and_grad(theta)
@@ -486,23 +500,39 @@ def fit(
             break
     p_opt = np.asarray(box.to_p(jnp.asarray(theta)))
     logp = jnp.log(jnp.asarray(p_opt))
-    # --- covariance, errors
-    k = len(free)
+    r = J = None
     if covariance:
         say("[fit] standard errors: compiling the Jacobian of the residuals ...")
         Js, rs = [], []
         for t, c in zip(targets, coef):
             data, y, mask = padded[t.name]
             if forward_mode:
-                r, J = resid_jac(logp, fixed_vals, data, y, c * mask)
+                r_, J_ = resid_jac(logp, fixed_vals, data, y, c * mask)
             else:
-                r, J = resid(logp, fixed_vals, data, y, c * mask), jac(logp, fixed_vals, data, y, c * mask)
-            Js.append(np.asarray(J)[: t.y.size])
-            rs.append(np.asarray(r)[: t.y.size])
-        J = np.concatenate(Js)
-        r = np.concatenate(rs)
-        m = r.size
-        s2 = float(r @ r) / max(m - k, 1)
+                r_, J_ = resid(logp, fixed_vals, data, y, c * mask), jac(logp, fixed_vals, data, y, c * mask)
+            Js.append(np.asarray(J_)[: t.y.size])
+            rs.append(np.asarray(r_)[: t.y.size])
+        J, r = np.concatenate(Js), np.concatenate(rs)
+
+    def predict(t, logp):
+        data, y, mask = padded[t.name]
+        # the residual function with y = 0, c = 1 is the prediction (no extra compilation)
+        pr = (resid_jac(logp, fixed_vals, data, jnp.zeros_like(y), mask)[0] if forward_mode
+              else resid(logp, fixed_vals, data, jnp.zeros_like(y), mask))
+        return np.asarray(pr)[: t.y.size]
+
+    return _result(free, params0, p0, lo, hi, p_opt, r, J, float(f), float(loss0), history, targets, holdout,
+                   predict, {}, n_evals[0], tic, say)
+
+
+def _result(free, params0, p0, lo, hi, p_opt, r, J, loss, loss0, history, targets, holdout, predict, known,
+            n_evals, tic, say) -> FitResult:
+    """FitResult at the optimum ``p_opt``: Gauss-Newton covariance of log p from the scaled
+    residuals ``r`` (m,) and their Jacobian ``J`` (m, k) in log p (None: no covariance),
+    predictions ``known`` (name -> (n,)) or ``predict(target, log p)``, RMS per trace."""
+    k = len(free)
+    if J is not None:
+        s2 = float(r @ r) / max(r.size - k, 1)
         cov = s2 * np.linalg.pinv(J.T @ J)
     else:
         cov = np.full((k, k), np.nan)
@@ -514,25 +544,81 @@ def fit(
     stderr = {k_: float(v * s) for k_, v, s in zip(free, p_opt, se_log)}
     rel = {k_: float(s) for k_, s in zip(free, se_log)}
     at_bound = [k_ for k_, v, a, b in zip(free, p_opt, lo, hi) if v < a * 1.001 or v > b / 1.001]
-    # --- predictions and RMS
     say(f"[fit] predicting {len(targets) + len(holdout)} trace(s) ({len(holdout)} held out) ...")
+    logp = jnp.log(jnp.asarray(p_opt))
     preds, rms = {}, {}
     for role, group in (("fit", targets), ("holdout", holdout)):
         for t in group:
-            # the residual function with y = 0, c = 1 is the prediction (no extra compilation)
-            data, y, mask = padded[t.name]
-            pr = (resid_jac(logp, fixed_vals, data, jnp.zeros_like(y), mask)[0] if forward_mode
-                  else resid(logp, fixed_vals, data, jnp.zeros_like(y), mask))
-            pr = np.asarray(pr)[: t.y.size]
+            pr = known[t.name] if t.name in known else predict(t, logp)
             preds[t.name] = pr
             e = float(np.sqrt(np.mean((pr - t.y) ** 2)))
             rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.scale, n=int(t.y.size), unit=t.unit)
     res = FitResult(params, list(free), {k_: float(v) for k_, v in zip(free, p0)},
                     {k_: (float(a), float(b)) for k_, a, b in zip(free, lo, hi)}, stderr, rel, corr, cov,
-                    float(f), float(loss0), history, rms, preds, targets, holdout, n_evals[0],
+                    float(loss), float(loss0), history, rms, preds, list(targets), list(holdout), n_evals,
                     _time.perf_counter() - tic, at_bound)
     say(res.table())
     return res
+
+
+def _fit_lm(forward, resid_jac, free, params0, p0, lo, hi, fixed_vals, targets, holdout, coef, padded, max_evals,
+            tol, covariance, say, tic) -> FitResult:
+    """``fit`` by Levenberg-Marquardt in log p: every evaluation runs each trace's one
+    forward-mode program (residuals and their Jacobian together)."""
+    from .least_squares import levenberg_marquardt
+
+    failing = []
+    last = {}  # the evaluation at the last point: name -> residuals (unpadded)
+
+    def fun(logp):
+        rs, Js = [], []
+        failing.clear()
+        for t, c in zip(targets, coef):
+            data, y, mask = padded[t.name]
+            r, J = resid_jac(jnp.asarray(logp), fixed_vals, data, y, c * mask)
+            r, J = np.asarray(r)[: t.y.size], np.asarray(J)[: t.y.size]
+            if not np.all(np.isfinite(r)):
+                failing.append(t.name)
+            rs.append(r)
+            Js.append(J)
+        last.clear()
+        last.update({t.name: r for t, r in zip(targets, rs)})
+        return np.concatenate(rs), np.concatenate(Js)
+
+    def progress(n, logp, cost, accepted):
+        if n == 1:
+            say(f"[fit] first evaluation done in {_time.perf_counter() - tic:.1f} s")
+            say(f"[fit] {len(free)} free parameter(s), {len(targets)} target(s); initial loss {cost:.6g}")
+            return
+        mark = "" if accepted else "  (rejected" + (f": trace {', '.join(failing)} failed)" if failing else ")")
+        say(f"[fit] lm {n:4d}/{max_evals} loss {cost:.6g}  " + _pstr(free, np.exp(logp))
+            + f"  ({_time.perf_counter() - tic:.0f} s){mark}")
+
+    say(f"[fit] compiling the forward model and its Jacobian, first evaluation on {len(targets)} trace(s) ...")
+    try:
+        res = levenberg_marquardt(fun, np.log(p0), np.log(lo), np.log(hi), max_evals=max_evals,
+                                  ftol=max(tol, 1e-12), xtol=1e-6, callback=progress)
+    except FloatingPointError:
+        p_init = {k: float(params0[k]) for k in params0}
+        why = "; ".join(explain_nonfinite(forward, p_init, t) for t in targets if t.name in failing)
+        raise FloatingPointError(f"fit: the loss is not finite at the initial parameters: {why or 'no trace failed'}")
+    say(f"[fit] {res.message}")
+    history = [(n, "lm", c) for n, c, _, ok in res.history if ok]
+    # the fit traces' predictions follow from the residuals at the optimum: r = c (pred - y)
+    known = {}
+    offsets = np.cumsum([0] + [t.y.size for t in targets])
+    for t, c, a, b in zip(targets, coef, offsets[:-1], offsets[1:]):
+        if c > 0:
+            known[t.name] = res.r[a:b] / c + t.y
+    p_opt = np.exp(res.x)
+
+    def predict(t, logp):
+        data, y, mask = padded[t.name]
+        return np.asarray(resid_jac(logp, fixed_vals, data, jnp.zeros_like(y), mask)[0])[: t.y.size]
+
+    J = res.J if covariance else None
+    return _result(free, params0, p0, lo, hi, p_opt, res.r, J, res.cost, res.cost0, history, targets, holdout,
+                   predict, known, res.n_evals, tic, say)
 
 
 def _pstr(free, p) -> str:

@@ -53,6 +53,8 @@ STRICTLY_POSITIVE = {"mu_inf": True, "K_inf": False, "Jm_inf": True, "eps": Fals
              "mu": True, "K": False, "Jm": True, "eta": True}
 FIT_KEYS = ("free", "bounds", "scale", "loss", "features", "weights", "optimizer", "max_iter",
             "tol", "learning_rate")
+OPTIMIZERS = ("lm", "adam-lbfgs")
+"""``[fit] optimizer`` values (``fitting.fit.METHODS``): Levenberg-Marquardt, optax Adam then L-BFGS."""
 SOLVER_KEYS = ("dt", "dt_min", "t_end", "n_cycles", "rho_inf", "damping", "gauss_order",
                "newton_tol", "newton_max_iter", "save_every", "linear_solver")
 TRACE_KEYS = ("file", "name", "role", "conditions", "columns", "units", "loading", "weight")

@@ -119,7 +119,7 @@ def _linear(params, data):
 
 def test_fit_table_shows_units_of_parameters_and_rms(capsys):
     res = F.fit(_linear, {"mu_inf": 1e4}, ["mu_inf"], {"mu_inf": (1e3, 1e5)}, _linear_targets(), adam_steps=2,
-                lbfgs_steps=3, covariance=False, verbose=True)
+                lbfgs_steps=3, covariance=False, verbose=True, method="adam-lbfgs")
     log = capsys.readouterr().out.splitlines()
     adam = [line for line in log if line.startswith("[fit] adam")]
     assert [line.split()[2] for line in adam] == ["1/2", "2/2"] and all("mu_inf=" in line for line in adam)
@@ -173,10 +173,12 @@ def _quadratic(params, data):
 
 
 def test_forward_and_reverse_mode_fits_agree_with_least_squares(monkeypatch):
-    """With few free parameters the fit differentiates in forward mode (one program for loss,
-    gradient, covariance and predictions), otherwise in reverse mode; both reach the linear
-    least-squares solution (numpy's lstsq) and the same standard errors, on traces of
-    different lengths (padded to common shapes)."""
+    """With few free parameters the Adam + L-BFGS fit differentiates in forward mode (one
+    program for loss, gradient, covariance and predictions), otherwise in reverse mode;
+    Levenberg-Marquardt uses the forward-mode Jacobian. All three reach the linear
+    least-squares solution (numpy's lstsq) and the same standard errors (numpy's
+    s^2 (X^T X)^-1 of the log-parameters), on traces of different lengths (padded to common
+    shapes)."""
     rng = np.random.default_rng(5)
     targets = []
     for name, n in (("short", 7), ("long", 12)):
@@ -184,12 +186,51 @@ def test_forward_and_reverse_mode_fits_agree_with_least_squares(monkeypatch):
         targets.append(F.Target(name, 3.0 * x + 2.0 * x ** 2 + 0.01 * rng.standard_normal(n), {"x": jnp.asarray(x)}))
     X = np.concatenate([np.stack([t.data["x"], t.data["x"] ** 2], 1) * np.sqrt(1 / t.y.size) / t.scale for t in targets])
     Y = np.concatenate([t.y * np.sqrt(1 / t.y.size) / t.scale for t in targets])
-    ref = np.linalg.lstsq(X, Y, rcond=None)[0]
+    ref, rss = np.linalg.lstsq(X, Y, rcond=None)[:2]
+    cov = float(rss[0]) / (Y.size - 2) * np.linalg.inv(X.T @ X)
+    se_ref = np.sqrt(np.diag(cov))  # of (a, b); the fit reports them from log p: the same to first order
     results = []
-    for max_free in (4, 0):
+    for method, max_free in (("adam-lbfgs", 4), ("adam-lbfgs", 0), ("lm", 4)):
         monkeypatch.setattr(F, "FORWARD_MODE_MAX_FREE", max_free)
         res = F.fit(_quadratic, {"a": 1.0, "b": 1.0}, ["a", "b"], {"a": (0.1, 10.0), "b": (0.1, 10.0)}, targets,
-                    adam_steps=30, lbfgs_steps=60, verbose=False)
+                    adam_steps=30, lbfgs_steps=60, verbose=False, method=method)
         np.testing.assert_allclose([res.params["a"], res.params["b"]], ref, rtol=1e-5)
+        np.testing.assert_allclose([res.stderr[k] for k in "ab"], se_ref, rtol=1e-6)
+        # predictions of the fit traces: the model at the optimum
+        for t in targets:
+            np.testing.assert_allclose(res.predictions[t.name], ref[0] * t.data["x"] + ref[1] * t.data["x"] ** 2,
+                                       rtol=1e-5)
         results.append(res)
-    np.testing.assert_allclose([results[0].stderr[k] for k in "ab"], [results[1].stderr[k] for k in "ab"], rtol=1e-6)
+    assert results[2].n_evals < results[0].n_evals / 3  # Levenberg-Marquardt: far fewer evaluations
+
+
+def test_levenberg_marquardt_on_a_nonlinear_problem_with_bounds_and_failures():
+    """fitting.least_squares: the exponential-decay fit of scipy's least_squares reference
+    problem, from a far start, reaches scipy's optimum; a bound that cuts off the optimum is
+    active at the solution; non-finite trial residuals (a failed simulation) are rejected
+    and the solve continues."""
+    from scipy.optimize import least_squares as scipy_ls
+
+    from fitting.least_squares import levenberg_marquardt
+
+    t = np.linspace(0.0, 4.0, 30)
+    y = 2.5 * np.exp(-1.3 * t) + 0.3 + 0.01 * np.sin(7 * t)
+    model = lambda x: x[0] * np.exp(-x[1] * t) + x[2]
+    jac = lambda x: np.stack([np.exp(-x[1] * t), -x[0] * t * np.exp(-x[1] * t), np.ones_like(t)], 1)
+    lo, hi = np.array([0.0, 0.0, -1.0]), np.array([10.0, 10.0, 1.0])
+    ref = scipy_ls(lambda x: model(x) - y, [1.0, 0.2, 0.0], jac=jac, bounds=(lo, hi), xtol=1e-14, ftol=1e-14).x
+    calls = []
+
+    def fun(x):
+        calls.append(x.copy())
+        r = model(x) - y
+        return (np.full_like(r, np.nan), None) if x[1] > 3.0 else (r, jac(x))  # "failed simulation" region
+
+    res = levenberg_marquardt(fun, [1.0, 0.2, 0.0], lo, hi, max_evals=60, xtol=1e-12)
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.x, ref, rtol=1e-7)
+    bounded = levenberg_marquardt(lambda x: (model(x) - y, jac(x)), [1.0, 0.2, 0.0], lo, [10.0, 1.0, 1.0],
+                                  max_evals=60)
+    assert bounded.x[1] == 1.0 and bounded.cost > res.cost
+    with pytest.raises(FloatingPointError):
+        levenberg_marquardt(lambda x: np.full(3, np.inf), [1.0], [0.0], [2.0], jacobian=lambda x, r: np.ones((3, 1)))
