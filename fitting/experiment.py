@@ -143,20 +143,64 @@ def _subsample(n: int, max_points: int | None) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, max_points)).astype(int))
 
 
+def turning_points(times, values, rel: float = 1e-3) -> np.ndarray:
+    """Times (s) where a piecewise-linear history (knots ``times``, ``values``) reverses
+    direction, ignoring moves below ``rel`` of its range (digitizing jitter)."""
+    t, v = np.asarray(times, dtype=float), np.asarray(values, dtype=float)
+    if t.size < 3:
+        return np.zeros(0)
+    tol = rel * max(float(np.ptp(v)), 1e-300)
+    out, ext, direction = [], 0, 0  # ext: index of the extreme so far; direction: +1 rising, -1 falling
+    for i in range(1, t.size):
+        d = v[i] - v[ext]
+        if direction == 0:
+            if abs(d) > tol:
+                direction, ext = int(np.sign(d)), i
+        elif direction * d > 0:  # further the same way: a new extreme
+            ext = i
+        elif -direction * d > tol:  # reversed by more than the jitter
+            out.append(t[ext])
+            direction, ext = -direction, i
+    return np.asarray(out)
+
+
+def step_grid(t_end: float, n_steps: int, nodes=()) -> np.ndarray:
+    """(n_steps + 1,) time grid over [0, t_end] through the interior ``nodes`` (s): uniform
+    between consecutive nodes, the steps shared out in proportion to the segments' lengths
+    (at least one each). A kink of the loading on a grid node keeps the time scheme's order
+    (between nodes the history is smooth); off the grid it costs first-order error."""
+    cuts = np.unique(np.concatenate([[0.0, float(t_end)], [x for x in np.asarray(nodes, float) if 0 < x < t_end]]))
+    lengths = np.diff(cuts)
+    n = np.maximum(1, np.floor(n_steps * lengths / t_end).astype(int))
+    while n.sum() < n_steps:  # largest remaining step first
+        n[np.argmax(lengths / n)] += 1
+    while n.sum() > n_steps and np.any(n > 1):
+        i = np.argmin(np.where(n > 1, lengths / n, np.inf))
+        n[i] -= 1
+    parts = [np.linspace(a, b, k + 1)[1:] for a, b, k in zip(cuts[:-1], cuts[1:], n)]
+    return np.concatenate([[0.0], *parts])
+
+
+STRETCH_PER_STEP = 5e-3
+"""Default stretch travelled per step of a uniaxial fit (the grid has a node at every
+turning point): the stress of the example fit's traces within 0.15 % of their amplitude of
+a 16x finer grid (max), 0.03 % RMS."""
+
+
 def uniaxial_target(name, time, stretch, stress, n_steps: int, voltage=None, max_points=None, knots=None,
                     weight=1.0) -> Target:
     """Target for ``UniaxialForward``: the measured stress at the measured times.
 
     The prescribed stretch history interpolates ``knots`` = (times, stretches) if
-    given, else the measured (time, stretch) pairs. The simulation runs on
-    ``n_steps`` uniform steps over [0, time[-1]].
+    given, else the measured (time, stretch) pairs. The simulation runs on ``n_steps``
+    steps over [0, time[-1]], uniform between the history's turning points (grid nodes).
     """
     time, stretch, stress = (np.asarray(a, dtype=float) for a in (time, stretch, stress))
     kt, kl = (time, stretch) if knots is None else (np.asarray(knots[0], float), np.asarray(knots[1], float))
     keep = np.concatenate([[True], np.diff(kt) > 0])  # strictly increasing knots
     kt, kl = kt[keep], kl[keep]
     idx = _subsample(time.size, max_points)
-    data = dict(times=jnp.asarray(np.linspace(0.0, float(time[-1]), n_steps + 1)),
+    data = dict(times=jnp.asarray(step_grid(float(time[-1]), n_steps, turning_points(kt, kl))),
                 knots_t=jnp.asarray(kt), knots_lam=jnp.asarray(kl), t_obs=jnp.asarray(time[idx]))
     if voltage is not None:
         data["volt_t"] = jnp.asarray(time[keep] if knots is None else time)
@@ -216,7 +260,7 @@ def _uniaxial_targets(exp, n_steps, max_points):
     for tr in exp.traces:
         lam = tr["stretch"]
         dl = np.sum(np.abs(np.diff(lam)))
-        N = int(n_steps) if n_steps is not None else max(int(np.ceil(dl / 2.5e-3)), 50)
+        N = int(n_steps) if n_steps is not None else max(int(np.ceil(dl / STRETCH_PER_STEP)), 50)
         v = tr.voltage()
         if fwd.voltage and v is None:
             v = np.zeros_like(tr.time)
@@ -224,7 +268,8 @@ def _uniaxial_targets(exp, n_steps, max_points):
                                           max_points=max_points, weight=tr.weight)))
     N = max(int(tg.data["times"].shape[0]) - 1 for _, tg in pairs)
     for _, tg in pairs:
-        tg.data["times"] = jnp.linspace(0.0, float(tg.data["times"][-1]), N + 1)
+        nodes = turning_points(tg.data["knots_t"], tg.data["knots_lam"])
+        tg.data["times"] = jnp.asarray(step_grid(float(tg.data["times"][-1]), N, nodes))
     return fwd, pairs
 
 

@@ -26,6 +26,29 @@ def test_uniaxial_example():
     for t in targets + holdout:
         assert t.y.shape == (20,) and t.unit == "Pa" and np.all(np.diff(t.data["knots_t"]) > 0)
     assert opts["max_iter"] == 30
+    for t in targets + holdout:  # the loading's turning point (peak stretch) is a grid node
+        kt, kl = np.asarray(t.data["knots_t"]), np.asarray(t.data["knots_lam"])
+        assert np.min(np.abs(np.asarray(t.data["times"]) - kt[np.argmax(kl)])) < 1e-12
+
+
+def test_turning_points_of_a_history():
+    """Reversals of a piecewise-linear history, jitter below 1e-3 of the range ignored."""
+    assert list(E.turning_points([0, 1, 2, 3, 4], [1, 1.5, 2, 1.5, 1])) == [2.0]
+    assert list(E.turning_points([0, 1, 2, 3], [1, 2, 1, 2])) == [1.0, 2.0]
+    assert list(E.turning_points([0, 1, 2, 3, 4], [1, 2, 1.9999, 2.5, 1])) == [3.0]  # a dip inside the jitter
+    assert list(E.turning_points([0, 1, 2, 3], [1, 1, 2, 2])) == []  # holds are not reversals
+    assert E.turning_points([0, 1], [1, 2]).size == 0
+
+
+def test_step_grid_passes_through_its_nodes():
+    g = E.step_grid(10.0, 7, [3.3])
+    assert g.shape == (8,) and g[0] == 0.0 and g[-1] == 10.0 and 3.3 in g
+    d = np.diff(g)
+    np.testing.assert_allclose(d[:2], 1.65)  # uniform between nodes, steps shared by length
+    np.testing.assert_allclose(d[2:], 6.7 / 5)
+    g = E.step_grid(10.0, 4, [0.1, 9.9, 12.0])  # short segments get one step; nodes outside ignored
+    np.testing.assert_allclose(g, [0.0, 0.1, 5.0, 9.9, 10.0])
+    np.testing.assert_allclose(E.step_grid(2.0, 4), np.linspace(0, 2, 5))
 
 
 def test_block_and_rolled_examples_get_their_forwards():
