@@ -8,6 +8,14 @@ Cases (issue 6):
       Model IV's nine parameters and h, L, r
   S1  R1's loading at five mesh sizes from 4 x 8 x 1 to 12 x 20 x 4: the exponent of
       run time per step against coordinates
+  F1  ``dejax fit data/examples/vhb4910_uniaxial.toml``, as a user runs it: wall time
+      including compilation and peak memory of the command, cold (a fresh compilation
+      cache) and warm (the same command again)
+  D1  ``dejax diagnose data/examples/block_d1.toml``, every candidate effect: wall time
+      and peak memory of the command (fresh compilation cache)
+
+F1 and D1 run the ``dejax`` command in a child process (the fitting layer sits above
+this one); they need the repository's ``data/examples`` folder.
 
 ``--max-steps N`` runs at most N steps of a case and reports the projected full-run
 time (rate x steps), marked "projected" in the table; without it every case runs in
@@ -176,6 +184,85 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1)):
 S1_SHAPES = ((4, 8, 1), (6, 10, 2), (8, 12, 2), (10, 16, 3), (12, 20, 4))
 
 
+EXAMPLES = Path(__file__).resolve().parents[1] / "data" / "examples"
+_CHILD = """
+import resource, sys
+from dejax.cli import main
+try:
+    rc = main(sys.argv[1:])
+except SystemExit as e:
+    rc = e.code
+print(f"__peak_rss_kb {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}", file=sys.stderr)
+sys.exit(rc)
+"""
+
+
+def run_command(argv, cache_dir) -> dict:
+    """Run ``dejax argv`` in a child process with its compilation cache in ``cache_dir``:
+    wall seconds (including start-up and compilation), peak resident memory (MB), exit code."""
+    import os
+    import subprocess
+
+    env = dict(os.environ, DEJAX_CACHE_DIR=str(cache_dir))
+    tic = time.perf_counter()
+    p = subprocess.run([sys.executable, "-c", _CHILD, *argv], env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - tic
+    peak = [line.split()[1] for line in p.stderr.splitlines() if line.startswith("__peak_rss_kb ")]
+    if p.returncode != 0:
+        raise RuntimeError(f"dejax {' '.join(argv)} failed (exit {p.returncode}):\n{p.stderr[-2000:]}")
+    return dict(wall_s=wall, peak_mb=float(peak[-1]) / 1024.0 if peak else float("nan"), stdout=p.stdout)
+
+
+def _example(name) -> Path:
+    path = EXAMPLES / name
+    if not path.exists():
+        raise FileNotFoundError(f"bench case needs {path} (the repository's data/examples folder)")
+    return path
+
+
+def _command_row(name, runs, **extra) -> dict:
+    """A table row for a case that times whole commands (``runs``: label -> run_command result)."""
+    first = next(iter(runs.values()))
+    row = dict(case=name, coordinates=None, unknowns=None, solver="-", steps=0, steps_run=0, compile_s=float("nan"),
+               run_s=first["wall_s"], projected=False, steps_per_s=float("nan"), newton_mean=float("nan"),
+               newton_max=0, factorizations=0, peak_mb=first["peak_mb"], status=0, dt=None, deviation=float("nan"))
+    row.update({f"{label}_wall_s": r["wall_s"] for label, r in runs.items()})
+    row.update({f"{label}_peak_mb": r["peak_mb"] for label, r in runs.items()})
+    row.update(extra)
+    return row
+
+
+def case_F1() -> list[dict]:
+    """The example fit, cold and warm: wall time and peak memory of each command."""
+    import tempfile
+
+    toml = _example("vhb4910_uniaxial.toml")
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = {}
+        for label in ("cold", "warm"):
+            out = Path(tmp) / f"fit_{label}"
+            runs[label] = run_command(["fit", str(toml), "--out", str(out), "--no-plots", "--quiet"], Path(tmp) / "cache")
+            fit = json.loads((out / "fit.json").read_text())
+        rows = []
+        for label, r in runs.items():
+            rows.append(_command_row(f"F1 fit example ({label} cache)", {label: r}, evaluations=fit["n_evals"],
+                                     rms=fit["rms"], params={k: fit["params"][k] for k in fit["free"]}))
+    return rows
+
+
+def case_D1() -> dict:
+    """The D1 diagnosis, every candidate effect: wall time, peak memory, verdict."""
+    import tempfile
+
+    toml = _example("block_d1.toml")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "diag"
+        r = run_command(["diagnose", str(toml), "--out", str(out), "--quiet"], Path(tmp) / "cache")
+        rep = json.loads((out / "report.json").read_text())
+    return _command_row("D1 diagnose block, all effects", {"cold": r}, verdict=rep.get("verdict"),
+                        best=rep.get("best"))
+
+
 def case_S1(max_steps=50, dt=1e-4):
     rows = [case_R(f"S1", shape, max_steps=max_steps, dt=dt) for shape in S1_SHAPES]
     n = np.array([r["coordinates"] for r in rows], float)
@@ -195,11 +282,13 @@ def format_table(rows) -> str:
         dev = r.get("deviation", float("nan"))
         dev = f"{100 * dev:.3f} %" if np.isfinite(dev) else "-"
         dt = f"{r['dt']:.0e}" if r.get("dt") else "-"
-        lines.append(f"{r['case']:<34} {coords:>7} {dt:>7} {r['steps']:>6} {r['compile_s']:>9.1f} {run:>10} "
-                     f"{r['steps_per_s']:>8.1f} {newton:>11} {r['factorizations']:>6} {r['peak_mb']:>8.0f} {dev:>9}")
+        comp = f"{r['compile_s']:.1f}" if np.isfinite(r["compile_s"]) else "-"
+        rate = f"{r['steps_per_s']:.1f}" if np.isfinite(r["steps_per_s"]) else "-"
+        lines.append(f"{r['case']:<34} {coords:>7} {dt:>7} {r['steps']:>6} {comp:>9} {run:>10} "
+                     f"{rate:>8} {newton:>11} {r['factorizations']:>6} {r['peak_mb']:>8.0f} {dev:>9}")
     lines.append("* projected from the steps run (rate x steps); Newton = iterations per step mean/max; deviation "
                  "(--reference) = max |x_P - x_P,ref| / peak |x_P,ref| against dt = 1e-4 s, Newton to 1e-10, over the "
-                 "steps run")
+                 "steps run; F1, D1: run s = wall time of the whole command (start-up and compilation included)")
     return "\n".join(lines)
 
 
@@ -227,8 +316,13 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
             srows, slope = case_S1(max_steps or 50, dt)
             rows += srows
             extra["S1_exponent"] = slope
+        elif c == "F1":
+            rows += case_F1()
+        elif c == "D1":
+            rows.append(case_D1())
+            sys.stderr.write(f"  D1 verdict: {rows[-1]['verdict']}\n")
         else:
-            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1 robust")
+            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1 F1 D1 robust")
     if rows:
         print(format_table(rows))
     for k, v in extra.items():
@@ -241,9 +335,11 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
 
 
 def register(sub):
-    p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1) and the robustness matrix, table + JSON")
+    p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1 F1 D1) and the robustness matrix, "
+                                     "table + JSON")
     p.add_argument("--cases", default="B1,R1,R2,G1,S1",
-                   help="comma-separated subset of B1,R1,R2,G1,S1, or robust (the solver robustness matrix)")
+                   help="comma-separated subset of B1,R1,R2,G1,S1,F1,D1, or robust (the solver robustness matrix); "
+                        "F1 and D1 time whole dejax fit / diagnose commands")
     p.add_argument("--select", default="", help="robust: keep the cases whose name contains one of these "
                                                 "comma-separated substrings (e.g. 'uniaxial,block')")
     p.add_argument("--torsional-mesh", type=_mesh, default=(48, 8, 2), help="robust: torsional strip mesh")

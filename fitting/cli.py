@@ -164,6 +164,8 @@ def register_diagnose(subparsers) -> argparse.ArgumentParser:
                    help="noise sigma in output units (default: estimated from the traces)")
     p.add_argument("--max-iter", type=int_at_least("--max-iter", 1), default=8,
                    help="Levenberg-Marquardt iterations per candidate")
+    p.add_argument("--fit-top", type=int_at_least("--fit-top", 0), default=3,
+                   help="fit the best N candidates of the screening at the baseline (0: fit every candidate)")
     p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
     p.set_defaults(func=diagnose_handler)
     return p
@@ -182,7 +184,7 @@ def diagnose_handler(args) -> int:
             fx.get(c)
         start = fx.from_experiment(exp) if exp.effects else None
         diag = dg.diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
-                           verbose=not getattr(args, "quiet", False))
+                           verbose=not getattr(args, "quiet", False), fit_top=args.fit_top)
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
         print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2

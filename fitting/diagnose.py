@@ -7,12 +7,19 @@ viscous units, see ``fitting.effects``) and measured traces with role "fit" or "
     unloading (sign of d phi_command/dt), transient (first cycle) vs steady state, and
     per cycle feature (mean, amplitude, phase lag to the command, loop area in the
     (command, output) plane, 2nd/1st harmonic ratio).
-(b) WHICH: every candidate effect is fitted on the fit traces (its parameters only, the
-    baseline held; start = off values or the effect's start values, bounded
-    Levenberg-Marquardt on normalised parameters with a forward-difference Jacobian, so
-    the one compiled ``simulate`` is reused), then ranked: significant effects first
-    (Delta BIC < -``bic_threshold``), within them by the holdout RMS. Gauss-Newton
-    standard errors s^2 (J^T J)^-1 at the optimum.
+(b) WHICH: screened first, at the baseline: one forward-difference column of the fit
+    residuals per effect parameter (a simulation per model-effect parameter, none for the
+    sensor effects), and for every candidate and every pair the bounded linear
+    least-squares fit of the baseline residuals on its columns (a score-type test: the
+    SSE and BIC the first-order model predicts). The best ``fit_top`` candidates (and the
+    best pair when its screened BIC beats the best single's by ``bic_threshold``) are then
+    fitted on the fit traces (their parameters only, the baseline held; start = the best
+    of the off values, the effects' start values and the screening's step; bounded
+    Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
+    forward-difference Jacobian, so the one compiled ``simulate`` is reused), and ranked:
+    significant effects first (Delta BIC < -``bic_threshold``), within them by the holdout
+    RMS; the screened-out ones follow with their linearized figures, never chosen.
+    Gauss-Newton standard errors s^2 (J^T J)^-1 at the optimum.
 (c) HOW FAR: RMS and "gap" = sqrt(max(RMS^2 - sigma^2, 0)) before/after, on fit and
     holdout, overall and per feature.
 
@@ -70,13 +77,14 @@ class Forward:
     output: the output name (e.g. "lateral_stretch"); transform: optional y -> y' applied
     to the raw output before the sensor (e.g. stretch -> displacement).
 
-    Newton: full Newton by default (``reuse=False``): with a lagged voltage the modified
-    (reused-factorisation) Newton stalled on the block (NEWTON_FAILED at t ~ 0.2 s for
-    tau = 10-16 ms), full Newton converges in ~4 iterations. A failed run is scored with
-    output 1e3 after the failure (a huge residual), not raised."""
+    Newton: modified Newton (a reused factorization, Anderson-mixed corrections) by
+    default, 4-5x cheaper per step than full Newton on the block and equal to it within
+    1e-11 (lags of 10-20 ms, a fast unit, 100x added mass, at dt = 5e-4 and 1.25e-2 s); a
+    run that fails with it is rerun with full Newton. A failed run is scored with output
+    1e3 after the failure (a huge residual), not raised."""
 
     def __init__(self, problem, output: str = "lateral_stretch", rho_inf: float | None = None,
-                 newton: it.NewtonOptions = it.NewtonOptions(tol=1e-8, max_iter=60, reuse=False), face_area: float | None = None,
+                 newton: it.NewtonOptions = it.NewtonOptions(tol=1e-8, max_iter=60, reuse=True), face_area: float | None = None,
                  pad_to: int | None = None, transform=None):
         self.problem = problem
         self.pieces0 = fx.make_pieces(problem, face_area)
@@ -96,37 +104,66 @@ class Forward:
                 items.append((name, tuple(sorted((k, round(float(v), 15)) for k, v in effects[name].items()))))
         return (trace.name, tuple(items))
 
-    def raw(self, effects: Mapping, trace: TraceData) -> np.ndarray:
-        """Model output (before the sensor transform) on the trace's time grid."""
-        key = self._key(effects, trace)
-        if key in self._cache:
-            return self._cache[key]
+    def _launch(self, effects: Mapping, trace: TraceData):
+        """Start the simulation of ``trace`` with the model effects of ``effects`` (JAX
+        dispatches it asynchronously); returns what ``_finish`` turns into the output."""
         model_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "model"}
         p = fx.apply_effects(self.pieces0, model_fx)
         loading = eqx.tree_at(lambda l: l.voltages[0].base, p.loading, trace.base)
         n = len(trace.t) - 1
         pad = max(self.pad_to or n, n)
-        sol = it.simulate(p.model, loading, trace.t, self.problem.output_fn, self.scheme, self.newton, pad_to=pad,
-                          control=None)  # fixed steps, as the fits (experiment.FIT_STEP_CONTROL)
         self.n_sims += 1
+        return p.model, loading, pad, it.simulate(p.model, loading, trace.t, self.problem.output_fn, self.scheme,
+                                                  self.newton, pad_to=pad, control=None)  # fixed steps, as fits
+
+    def _finish(self, effects: Mapping, trace: TraceData, launched) -> np.ndarray:
+        model, loading, pad, sol = launched
+        if not sol.ok and self.newton.reuse and int(sol.status) == int(it.Status.NEWTON_FAILED):
+            full = dataclasses.replace(self.newton, reuse=False)
+            sol = it.simulate(model, loading, trace.t, self.problem.output_fn, self.scheme, full, pad_to=pad,
+                              control=None)
+            self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)
         if not sol.ok:  # failed run: report a huge residual rather than crash the ranking
             y = np.where(np.isfinite(y), y, 0.0)
             y[int(sol.fail_step) + 1:] = 1e3
         if self.transform is not None:
             y = np.asarray(self.transform(y))
-        if len(self._cache) > 2000:
-            self._cache.clear()
-        self._cache[key] = y
         return y
 
+    def raw_many(self, jobs: Sequence[tuple]) -> list[np.ndarray]:
+        """Model outputs (before the sensor transform) of ``jobs`` = [(effects, trace)], each
+        on its trace's time grid: the simulations not cached are all started before any is
+        waited for, so that independent runs overlap on a multi-core CPU."""
+        if len(self._cache) > 2000:
+            self._cache.clear()
+        started = {}
+        for effects, trace in jobs:
+            key = self._key(effects, trace)
+            if key not in self._cache and key not in started:
+                started[key] = (effects, trace, self._launch(effects, trace))
+        for key, (effects, trace, launched) in started.items():
+            self._cache[key] = self._finish(effects, trace, launched)
+        return [self._cache[self._key(e, t)] for e, t in jobs]
+
+    def raw(self, effects: Mapping, trace: TraceData) -> np.ndarray:
+        """Model output (before the sensor transform) on the trace's time grid."""
+        return self.raw_many([(effects, trace)])[0]
+
+    def predict_many(self, jobs: Sequence[tuple]) -> list[np.ndarray]:
+        """Predicted measurements of ``jobs`` = [(effects, trace)] (simulations overlapped)."""
+        ys = self.raw_many(jobs)
+        out = []
+        for (effects, trace), y in zip(jobs, ys):
+            sensor_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "sensor"}
+            if sensor_fx:
+                s = fx.apply_effects(self.pieces0, sensor_fx).sensor
+                y = np.asarray(s(jnp.asarray(trace.t), jnp.asarray(y)))
+            out.append(y)
+        return out
+
     def predict(self, effects: Mapping, trace: TraceData) -> np.ndarray:
-        y = self.raw(effects, trace)
-        sensor_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "sensor"}
-        if not sensor_fx:
-            return y
-        s = fx.apply_effects(self.pieces0, sensor_fx).sensor
-        return np.asarray(s(jnp.asarray(trace.t), jnp.asarray(y)))
+        return self.predict_many([(effects, trace)])[0]
 
 
 # ----------------------------------------------------------------------------- noise, breakdown
@@ -217,93 +254,163 @@ class CandidateResult:
     n_sims: int
     seconds: float
     significant: bool = False
+    fitted: bool = True  # False: screened out (its figures are the screening's linearized ones)
 
     def as_dict(self):
         return dataclasses.asdict(self)
 
 
 def _residuals(fwd: Forward, effects: Mapping, traces: Sequence[TraceData]) -> np.ndarray:
-    return np.concatenate([fwd.predict(effects, tr) - tr.y for tr in traces])
+    return _residuals_many(fwd, [effects], traces)[0]
+
+
+def _residuals_many(fwd: Forward, effects_list: Sequence[Mapping], traces: Sequence[TraceData]) -> list:
+    """Residuals (model - measured, concatenated over ``traces``) of each effects dict, the
+    simulations of all of them started together."""
+    preds = fwd.predict_many([(e, tr) for e in effects_list for tr in traces])
+    k = len(traces)
+    return [np.concatenate([p - tr.y for p, tr in zip(preds[i * k:(i + 1) * k], traces)])
+            for i in range(len(effects_list))]
+
+
+def _plist(names: Sequence[str]) -> list:
+    return [(n, p) for n in names for p in fx.get(n).params]
+
+
+def _z_off(p: fx.Param, given: float | None = None) -> float:
+    """Normalized position of a parameter's off value (or ``given``), inside [0, 1]."""
+    x = p.off if given is None else given
+    if p.scale == "log" and x <= 0:
+        return 0.5
+    return min(max(_to_z(p, min(max(x, p.bounds[0]), p.bounds[1])), 0.0), 1.0)
+
+
+def _values_of(plist, z, names, fixed: Mapping) -> dict:
+    out = {n: dict(fixed.get(n, fx.get(n).off())) for n in names}
+    for (n, p), zi in zip(plist, z):
+        out[n][p.name] = _from_z(p, zi)
+    return {**fixed, **out}
+
+
+FD_STEP = 1e-3
+"""Finite-difference step of the diagnosis's Jacobians, in the normalized parameters z in
+[0, 1] (one-sided, into the box)."""
+
+
+def _fd_jacobian(resid_many, z, r, h: float = FD_STEP) -> np.ndarray:
+    """(m, k) forward differences at z (backward where z + h leaves [0, 1]);
+    ``resid_many(list of z) -> list of residuals`` evaluates the k points together."""
+    steps = np.where(z + h <= 1.0, h, -h)
+    points = []
+    for j in range(z.size):
+        zz = z.copy()
+        zz[j] += steps[j]
+        points.append(zz)
+    return np.stack([(rj - r) / hj for rj, hj in zip(resid_many(points), steps)], axis=1)
 
 
 def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[TraceData], start: Mapping | None = None,
-                max_iter: int = 8, fixed: Mapping | None = None, rtol: float = 1e-4):
-    """Bounded Levenberg-Marquardt over the parameters of the effects ``names`` (normalised
-    to [0, 1] in lin or log scale), others in ``fixed`` held. Returns (values, stderr, sse, J)."""
+                max_iter: int = 8, fixed: Mapping | None = None, rtol: float = 1e-4, z0=None):
+    """Bounded Levenberg-Marquardt (``fitting.least_squares``) over the parameters of the
+    effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
+    Jacobian (so the one compiled ``simulate`` is reused); others in ``fixed`` held. Starts
+    from the best of the off values, the effects' start values and ``z0`` (e.g. the
+    screening's linearized optimum). At most ``max_iter`` evaluations
+    besides the Jacobians'; stops when an accepted step lowers the SSE by less than
+    ``rtol`` (relative). Returns (values, stderr, sse, J)."""
+    from .least_squares import levenberg_marquardt
+
     fixed = dict(fixed or {})
     start = dict(start or {})
-    plist = [(n, p) for n in names for p in fx.get(n).params]
+    plist = _plist(names)
 
-    def vals_of(z):
-        out = {n: dict(fixed.get(n, fx.get(n).off())) for n in names}
-        for (n, p), zi in zip(plist, z):
-            out[n][p.name] = _from_z(p, zi)
-        return {**fixed, **out}
+    def resid_many(zs):
+        return _residuals_many(fwd, [_values_of(plist, z, names, fixed) for z in zs], traces)
 
     def resid(z):
-        return _residuals(fwd, vals_of(z), traces)
+        return resid_many([z])[0]
 
-    # start: off values and the effects' start values; keep the better
-    cands = []
-    for src in ("off", "start"):
-        z = np.array([_to_z(p, min(max(start.get(n, {}).get(p.name, getattr(p, src)), p.bounds[0]), p.bounds[1])
-                                if not (p.scale == "log" and getattr(p, src) <= 0) else 0.5)
-                      for n, p in plist], dtype=float)
-        cands.append(z)
-    best_z, best_r = None, None
-    for z in cands:
-        if best_z is not None and np.allclose(z, best_z):
-            continue
-        r = resid(z)
-        if best_r is None or r @ r < best_r @ best_r:
-            best_z, best_r = z, r
-    z, r = best_z, best_r
-    sse = float(r @ r)
-    lam = 1e-2
-    h = 1e-3
-    J = None
-    for _ in range(max_iter):
-        J = np.empty((r.size, z.size))
-        for j in range(z.size):
-            hj = h if z[j] + h <= 1.0 else -h
-            zz = z.copy()
-            zz[j] += hj
-            J[:, j] = (resid(zz) - r) / hj
-        g = J.T @ r
-        A = J.T @ J
-        improved = False
-        for _ls in range(4):
-            dz = -np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12 * (np.trace(A) + 1e-300)), g)
-            zn = np.clip(z + dz, 0.0, 1.0)
-            if np.allclose(zn, z, atol=1e-7):
-                break
-            rn = resid(zn)
-            ssen = float(rn @ rn)
-            if ssen < sse:
-                improved = True
-                rel = (sse - ssen) / max(sse, 1e-300)
-                z, r, sse = zn, rn, ssen
-                lam = max(lam / 5, 1e-6)
-                break
-            lam *= 8
-        if not improved or rel < rtol:
-            break
+    # starts: the off values, the effects' start values (and z0); keep the best
+    cands = [np.array([_z_off(p, start.get(n, {}).get(p.name, getattr(p, src))) for n, p in plist])
+             for src in ("off", "start")]
+    if z0 is not None:
+        cands.append(np.clip(np.asarray(z0, dtype=float), 0.0, 1.0))
+    best_z, best_sse = None, np.inf
+    for z, r in zip(cands, resid_many(cands)):
+        if r @ r < best_sse:
+            best_z, best_sse = z, float(r @ r)
+    res = levenberg_marquardt(resid, best_z, np.zeros(best_z.size), np.ones(best_z.size),
+                              jacobian=lambda z, r: _fd_jacobian(resid_many, z, r), max_evals=max_iter + 1,
+                              ftol=rtol, xtol=1e-7)
+    z, sse, J = res.x, res.cost, res.J
     # Gauss-Newton covariance in natural units
-    vals = vals_of(z)
+    vals = _values_of(plist, z, names, fixed)
     stderr = {}
-    if J is not None:
-        n, k = r.size, z.size
-        s2 = sse / max(n - k, 1)
-        D = np.array([_dx_dz(p, vals[nm][p.name]) for nm, p in plist])
-        Jx = J / D[None, :]
-        try:
-            cov = s2 * np.linalg.pinv(Jx.T @ Jx)
-            sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        except np.linalg.LinAlgError:
-            sd = np.full(k, np.nan)
-        for (nm, p), s in zip(plist, sd):
-            stderr.setdefault(nm, {})[p.name] = float(s)
+    n, k = res.r.size, z.size
+    s2 = sse / max(n - k, 1)
+    D = np.array([_dx_dz(p, vals[nm][p.name]) for nm, p in plist])
+    Jx = J / D[None, :]
+    try:
+        cov = s2 * np.linalg.pinv(Jx.T @ Jx)
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        sd = np.full(k, np.nan)
+    for (nm, p), s_ in zip(plist, sd):
+        stderr.setdefault(nm, {})[p.name] = float(s_)
     return vals, stderr, sse, J
+
+
+@dataclasses.dataclass
+class Screened:
+    """A candidate (one effect or a pair) linearized at the baseline: the bounded linear
+    least-squares step ``z`` (normalized parameters) of the residuals' first-order model,
+    the SSE it predicts, and the BIC change that SSE would give (``d_bic``)."""
+
+    names: tuple
+    z: np.ndarray
+    sse: float
+    d_bic: float
+
+
+def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[TraceData], r0: np.ndarray,
+           pairs: bool = True) -> dict:
+    """Score-type screening at the baseline (every effect off): one forward-difference column
+    per parameter (a simulation for a model effect, none for a sensor effect), then for each
+    candidate and each pair of candidates the bounded linear least-squares fit of the
+    baseline residuals ``r0`` on its columns. Returns {names tuple: Screened}."""
+    from scipy.optimize import lsq_linear
+
+    plist = _plist(candidates)
+    z_off = np.array([_z_off(p) for _, p in plist])
+
+    def resid_many(zs):
+        return _residuals_many(fwd, [_values_of(plist, z, candidates, {}) for z in zs], traces)
+
+    r_off = resid_many([z_off])[0]  # the baseline (its simulations cached)
+    J = _fd_jacobian(resid_many, z_off, r_off)
+    n = r0.size
+    sse0 = float(r0 @ r0)
+    _, bic0 = _ic(sse0, n, 0)
+    cols = {}
+    for i, (name, _) in enumerate(plist):
+        cols.setdefault(name, []).append(i)
+    groups = [(c,) for c in candidates]
+    if pairs:
+        groups += [(a, b) for i, a in enumerate(candidates) for b in candidates[i + 1:]]
+    out = {}
+    for g in groups:
+        idx = [i for name in g for i in cols[name]]
+        A = J[:, idx]
+        keep = np.any(A != 0.0, axis=0)  # a parameter without effect at the baseline (tau of a unit that is off)
+        dz = np.zeros(len(idx))
+        if np.any(keep):
+            sol = lsq_linear(A[:, keep], -r_off, bounds=(-z_off[idx][keep], 1.0 - z_off[idx][keep]))
+            dz[keep] = sol.x
+        rl = r_off + A @ dz
+        sse = float(rl @ rl)
+        k = sum(fx.get(name).n_params for name in g)
+        out[g] = Screened(g, z_off[idx] + dz, sse, _ic(sse, n, k)[1] - bic0)
+    return out
 
 
 # ----------------------------------------------------------------------------- diagnosis
@@ -332,6 +439,8 @@ class Diagnosis:
             pv = ", ".join(f"{n}.{k}={v:.4g}+-{c['stderr'].get(n, {}).get(k, float('nan')):.2g}"
                            for n, d in c["values"].items() for k, v in d.items())
             hold = f"{c['rms_holdout']:.3e}" if c["rms_holdout"] is not None else "-"
+            if not c.get("fitted", True):
+                pv += "  (screened out; linearized at the baseline)"
             lines.append(f"{i + 1:>4} {c['name']:<20} {c['k']:>2} {c['d_bic']:>9.1f} {c['d_aic']:>9.1f} "
                          f"{c['rms_fit']:>10.3e} {hold:>10} {'*' if c['significant'] else '':>3}  {pv}")
         b = self.baseline
@@ -356,8 +465,12 @@ def _gap(rms, sigma):
 
 def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str] | None = None,
              noise: float | None = None, bic_threshold: float = 10.0, z: float = 4.0, max_iter: int = 8,
-             start: Mapping | None = None, verbose: bool = False) -> Diagnosis:
-    """Run (a)-(c) of the module docstring. ``candidates``: effect names (default: all)."""
+             start: Mapping | None = None, verbose: bool = False, fit_top: int = 3, pairs: bool = True) -> Diagnosis:
+    """Run (a)-(c) of the module docstring. ``candidates``: effect names (default: all).
+
+    ``fit_top``: how many candidates, best screened first, are fitted (0: every one, no
+    screening); ``pairs``: also screen every pair and fit the best one when its screened
+    BIC beats the best single's by ``bic_threshold``."""
     t0 = _time.time()
     fit = [tr for tr in traces if tr.role == "fit"]
     hold = [tr for tr in traces if tr.role != "fit"]
@@ -370,9 +483,9 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
     if verbose:
         print(f"[diagnose] baseline: simulating {len(traces)} trace(s) (the first call compiles the simulation) ...",
               flush=True)
-    base_pred = {tr.name: fwd.predict({}, tr) for tr in traces}
+    base_pred = dict(zip((tr.name for tr in traces), fwd.predict_many([({}, tr) for tr in traces])))
     if verbose:
-        print(f"[diagnose] baseline done in {_time.time() - t0:.1f} s; fitting {len(candidates)} candidate effect(s)",
+        print(f"[diagnose] baseline done in {_time.time() - t0:.1f} s; {len(candidates)} candidate effect(s)",
               flush=True)
     r0 = np.concatenate([base_pred[tr.name] - tr.y for tr in fit])
     sse0 = float(r0 @ r0)
@@ -384,24 +497,56 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
     before = breakdown(traces, [base_pred[tr.name] for tr in traces])
 
     results = []
-    for name in candidates:
+    scr = None
+    to_fit = [(name,) for name in candidates]
+    if fit_top and len(candidates) > fit_top:
         ts = _time.time()
         s0 = fwd.n_sims
-        vals, sd, sse, _ = fit_effects(fwd, [name], fit, start=start, max_iter=max_iter)
-        k = fx.get(name).n_params
+        scr = screen(fwd, candidates, fit, r0, pairs=pairs)
+        singles = sorted(((name,) for name in candidates), key=lambda g: scr[g].d_bic)
+        to_fit = singles[:fit_top]
+        if pairs:
+            best_pair = min((g for g in scr if len(g) == 2), key=lambda g: scr[g].d_bic, default=None)
+            if best_pair is not None and scr[best_pair].d_bic < scr[singles[0]].d_bic - bic_threshold:
+                to_fit.append(best_pair)  # fitted only if the best single leaves a gap (below)
+        if verbose:
+            print(f"[diagnose] screened {len(candidates)} candidate(s){' and their pairs' if pairs else ''} at the "
+                  f"baseline in {_time.time() - ts:.1f} s ({fwd.n_sims - s0} simulation(s)); fitting "
+                  + ", ".join("+".join(g) for g in to_fit), flush=True)
+        for g in singles[fit_top:]:
+            sc = scr[g]
+            k = fx.get(g[0]).n_params
+            aic, bic = _ic(sc.sse, n, k)
+            vals = _values_of(_plist(g), sc.z, g, {})
+            results.append(CandidateResult(g[0], vals, {}, k, sc.sse, math.sqrt(sc.sse / n), None, aic, bic,
+                                           aic - aic0, bic - bic0, 0, 0.0, fitted=False))
+    for i, g in enumerate(to_fit):
+        fitted = [r for r in results if r.fitted]
+        if len(g) > 1 and fitted and min(r.sse_fit for r in fitted) / n <= chi_lim * sigma ** 2:
+            if verbose:
+                print(f"  [{i + 1}/{len(to_fit)}] {'+'.join(g):<20} not fitted: the best single effect leaves "
+                      "residuals at the noise level", flush=True)
+            continue
+        ts = _time.time()
+        s0 = fwd.n_sims
+        vals, sd, sse, _ = fit_effects(fwd, list(g), fit, start=start, max_iter=max_iter,
+                                       z0=None if scr is None else scr[g].z)
+        k = sum(fx.get(name).n_params for name in g)
         aic, bic = _ic(sse, n, k)
-        rh = _rms(np.concatenate([fwd.predict(vals, tr) - tr.y for tr in hold])) if hold else None
-        c = CandidateResult(name, vals, sd, k, sse, math.sqrt(sse / n), rh, aic, bic, aic - aic0, bic - bic0,
+        rh = _rms(_residuals(fwd, vals, hold)) if hold else None
+        c = CandidateResult("+".join(g), vals, sd, k, sse, math.sqrt(sse / n), rh, aic, bic, aic - aic0, bic - bic0,
                             fwd.n_sims - s0, _time.time() - ts)
-        c.significant = c.d_bic < -bic_threshold
+        # a pair must also beat each of its fitted singles by the threshold (nested models)
+        singles_bic = [r.bic for r in results if r.fitted and r.name in g and len(g) > 1]
+        c.significant = c.d_bic < -bic_threshold and all(c.bic < b - bic_threshold for b in singles_bic)
         results.append(c)
         if verbose:
             rh_text = "-" if rh is None else f"{rh:.3e}"
-            print(f"  [{len(results)}/{len(candidates)}] {name:<20} dBIC={c.d_bic:9.1f} rms_fit={c.rms_fit:.3e} "
+            print(f"  [{i + 1}/{len(to_fit)}] {c.name:<20} dBIC={c.d_bic:9.1f} rms_fit={c.rms_fit:.3e} "
                   f"rms_hold={rh_text} ({c.seconds:.1f} s)", flush=True)
 
     def key(c):
-        return (not c.significant, c.rms_holdout if c.rms_holdout is not None else c.rms_fit, c.bic)
+        return (not c.significant, not c.fitted, c.rms_holdout if c.rms_holdout is not None else c.rms_fit, c.bic)
 
     results.sort(key=key)
     best = results[0] if results and results[0].significant else None
@@ -415,7 +560,7 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
     after = shrink = None
     preds = {"baseline": base_pred}
     if best is not None:
-        bp = {tr.name: fwd.predict(best.values, tr) for tr in traces}
+        bp = dict(zip((tr.name for tr in traces), fwd.predict_many([(best.values, tr) for tr in traces])))
         preds[best.name] = bp
         after = breakdown(traces, [bp[tr.name] for tr in traces])
         shrink = {}

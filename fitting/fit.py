@@ -19,11 +19,15 @@ API
   space); missing bounds default to ``[p0 / 100, p0 * 100]``.
 * loss = sum over targets of ``weight * mean(((pred - y) / scale)^2)``,
   ``scale`` = the trace amplitude (peak-to-peak of y, else max |y|).
-* optimizer: optax Adam (``adam_steps``), then L-BFGS (``optax.scale_by_lbfgs``
-  directions with a backtracking Armijo line search, ``lbfgs_steps``); every
-  loss evaluation is one simulation per target plus its reverse-mode gradient.
+* optimizer (``method``): "lm" (default), Levenberg-Marquardt in log p within the
+  bounds (``fitting.least_squares``, at most ``max_evals`` evaluations), each evaluation
+  one forward-mode program per target giving its residuals and their Jacobian; or
+  "adam-lbfgs", optax Adam (``adam_steps``) then L-BFGS (``optax.scale_by_lbfgs``
+  directions with a backtracking Armijo line search, ``lbfgs_steps``) in theta, every
+  loss evaluation one simulation per target plus its gradient (forward mode up to
+  ``FORWARD_MODE_MAX_FREE`` free parameters, reverse mode above).
 * at the optimum: residual Jacobian by ``jax.jacfwd`` w.r.t. log p (forward
-  mode, k tangents), Gauss-Newton covariance ``s^2 (J^T J)^-1`` with
+  mode, k tangents; "lm" has it from its last evaluation), Gauss-Newton covariance ``s^2 (J^T J)^-1`` with
   ``s^2 = RSS / (m - k)``, standard errors ``SE(p) = p SE(log p)`` and the
   correlation matrix; RMS errors on training and held-out targets.
 

@@ -19,3 +19,17 @@ def test_deviation_is_the_largest_gap_over_the_reference_peak():
 def test_reference_cache_lives_under_the_dejax_cache_dir(tmp_path, monkeypatch):
     monkeypatch.setenv("DEJAX_CACHE_DIR", str(tmp_path))
     assert bench.reference_path("tube-4x8x1") == tmp_path / "bench" / "tube-4x8x1.npz"
+
+
+def test_command_cases_time_a_child_dejax_process(tmp_path):
+    """F1 and D1 time whole dejax commands in a child process: its wall time, its own peak
+    memory (reported by the child), and a failing command raises with its exit code."""
+    import pytest
+
+    from dejax import bench
+
+    r = bench.run_command(["verify", "--help"], tmp_path / "cache")
+    assert r["wall_s"] > 0 and 10 < r["peak_mb"] < 4000 and "verify" in r["stdout"]
+    with pytest.raises(RuntimeError, match="exit 2"):
+        bench.run_command(["fit", str(tmp_path / "missing.toml")], tmp_path / "cache")
+    assert bench._example("vhb4910_uniaxial.toml").exists() and bench._example("block_d1.toml").exists()

@@ -26,12 +26,15 @@ class AnalyticForward(dg.Forward):
         self.n_sims = 0
         self.transform = None
 
-    def raw(self, effects, trace):
+    def _launch(self, effects, trace):
         tau = effects.get("voltage_lag", {}).get("tau", 0.0)
         rel = effects.get("electrode_stiffness", {}).get("rel", 0.0)
         u = np.asarray(fx.lowpass(trace.base, tau, jnp.asarray(trace.t)))
         self.n_sims += 1
         return 1.0 + self.k * u ** 2 / (1.0 + rel)
+
+    def _finish(self, effects, trace, launched):
+        return launched
 
 
 CONDS = [("f1", "fit", 14e3, 2.0), ("f2", "fit", 10e3, 5.0), ("h", "holdout", 12e3, 3.0)]
@@ -119,3 +122,26 @@ def test_diagnose_reports_progress_per_candidate(capsys):
     assert out[2].split()[:2] == ["[1/2]", "voltage_lag"] and out[3].split()[:2] == ["[2/2]", "sensor_offset"]
     dg.diagnose(AnalyticForward(), tr, ["voltage_lag"], noise=SIGMA, verbose=False)
     assert capsys.readouterr().out == ""
+
+
+def test_screening_is_exact_for_a_linear_effect_and_fits_only_the_best():
+    """The screening's bounded linear least squares on forward-difference columns: for the
+    sensor offset (linear in its parameter) it is the exact fit, c = mean(measured - model);
+    with fit_top = 1 only the best screened candidate is fitted, the others are reported as
+    screened out and never chosen."""
+    tr = _traces({"sensor_offset": {"c": 1e-3}}, seed=6)
+    fwd = AnalyticForward()
+    fit = [t for t in tr if t.role == "fit"]
+    r0 = np.concatenate([fwd.predict({}, t) - t.y for t in fit])
+    scr = dg.screen(fwd, CANDS, fit, r0)
+    off = scr[("sensor_offset",)]
+    c_exact = -float(np.mean(r0))
+    c_screen = dg._values_of(dg._plist(["sensor_offset"]), off.z, ["sensor_offset"], {})["sensor_offset"]["c"]
+    assert c_screen == pytest.approx(c_exact, rel=1e-9)
+    assert off.sse == pytest.approx(float(np.sum((r0 - r0.mean()) ** 2)), rel=1e-9)
+    assert ("voltage_lag", "sensor_offset") in scr and len(scr) == 5 + 10  # every pair screened too
+    assert min(scr, key=lambda g: scr[g].d_bic if len(g) == 1 else np.inf) == ("sensor_offset",)
+    d = dg.diagnose(fwd, tr, CANDS, fit_top=1)
+    assert d.best == "sensor_offset" and d.ranking[0]["fitted"]
+    assert [c["fitted"] for c in d.ranking].count(True) == 1
+    assert all(not c["significant"] for c in d.ranking if not c["fitted"])
