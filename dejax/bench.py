@@ -13,6 +13,8 @@ Cases (issue 6):
       cache) and warm (the same command again)
   D1  ``dejax diagnose data/examples/block_d1.toml``, every candidate effect: wall time
       and peak memory of the command (fresh compilation cache)
+  N1  one Newton iteration (element system, assembly, factorization, solve) of R2,
+      beside FElupe's 16^3 hex8 cube (K/mu = 1e4) in the same run when FElupe is installed
 
 F1 and D1 run the ``dejax`` command in a child process (the fitting layer sits above
 this one); they need the repository's ``data/examples`` folder.
@@ -268,6 +270,76 @@ def case_D1() -> dict:
                         best=rep.get("best"))
 
 
+FELUPE_CUBE = """
+import sys, time
+import felupe as fem
+try:
+    from pypardiso import spsolve
+    kw, solver = {"solver": spsolve}, "pypardiso"
+except ImportError:
+    kw, solver = {}, "scipy"
+n = 16
+mesh = fem.Cube(n=n + 1)
+region = fem.RegionHexahedron(mesh)
+field = fem.FieldContainer([fem.Field(region, dim=3)])
+solid = fem.SolidBody(fem.NeoHooke(mu=1.0, bulk=1e4), field)
+boundaries, _ = fem.dof.uniaxial(field, clamped=False, move=0.5, return_loadcase=True)
+its = []
+step = fem.Step(items=[solid], ramp={boundaries["move"]: fem.math.linsteps([0, 1], num=3)}, boundaries=boundaries)
+job = fem.Job(steps=[step], callback=lambda stepnumber, substepnumber, substep, **k: its.append(substep.iterations))
+tic = time.perf_counter()
+job.evaluate(verbose=0, tol=1e-8, **kw)
+wall = time.perf_counter() - tic
+print(sum(f.values.size for f in field.fields), sum(its), wall, solver)
+"""
+
+
+def _felupe_iteration() -> dict | None:
+    """FElupe's hex8 Neo-Hooke cube 16^3 (14,739 unknowns), K/mu = 1e4, uniaxial stretch
+    1.5 in 3 steps (issue 10's peer figure): seconds per full Newton iteration (assembly
+    and solve), in a child process; None when FElupe is not installed."""
+    import subprocess
+
+    p = subprocess.run([sys.executable, "-c", FELUPE_CUBE], capture_output=True, text=True)
+    if p.returncode != 0:
+        if "No module named 'felupe'" in p.stderr:
+            return None
+        raise RuntimeError(f"the FElupe peer run failed:\n{p.stderr[-2000:]}")
+    dofs, its, wall, solver = p.stdout.split()[-4:]
+    return dict(unknowns=int(dofs), iterations=int(its), seconds_per_iteration=float(wall) / int(its),
+                solver=solver)
+
+
+def case_N1(dt=TUBE_DT, solver="auto", repeat=2) -> dict:
+    """One Newton iteration of R2 (tube 12 x 20 x 4, Model IV): element system (forces and
+    consistent tangent), condensation, sparse assembly, factorization, solve and the line
+    search's residual, timed as a step limited to one iteration (after compilation, best of
+    ``repeat``); beside it FElupe's cube when FElupe is installed, timed in the same run."""
+    p = scenarios.rolled("IV", 30.0, 50e3, shape=(12, 20, 4))
+    m = p.model
+    solv = linsolve.choose_solver(m.structure, solver)
+    step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=1, line_search=False), solv)
+    s0 = it.initial_state(m, p.loading, 0.0)
+    fac0 = it.initial_carry(m, s0, solv).fac
+    one = jax.jit(lambda s, fac: step(m, p.loading, s, s.t + dt, fac, False))
+    tic = time.perf_counter()
+    jax.block_until_ready(one(s0, fac0))
+    compile_s = time.perf_counter() - tic
+    ts = []
+    for _ in range(repeat):
+        tic = time.perf_counter()
+        jax.block_until_ready(one(s0, fac0))
+        ts.append(time.perf_counter() - tic)
+    per_it = min(ts)
+    peer = _felupe_iteration()
+    return dict(case="N1 one Newton iteration, R2", coordinates=int(m.structure.n_dofs),
+                unknowns=int(m.structure.n_free), solver=type(solv).__name__ + f"({getattr(solv, 'backend', '')})",
+                steps=0, steps_run=0, compile_s=compile_s - per_it, run_s=per_it, projected=False,
+                steps_per_s=float("nan"), newton_mean=float("nan"), newton_max=0, factorizations=1,
+                peak_mb=_peak_rss_mb(), status=0, dt=dt, deviation=float("nan"), felupe=peer,
+                ratio_to_felupe=per_it / peer["seconds_per_iteration"] if peer else None)
+
+
 def case_S1(max_steps=50, dt=1e-4):
     rows = [case_R(f"S1", shape, max_steps=max_steps, dt=dt) for shape in S1_SHAPES]
     n = np.array([r["coordinates"] for r in rows], float)
@@ -321,13 +393,22 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
             srows, slope = case_S1(max_steps or 50, dt)
             rows += srows
             extra["S1_exponent"] = slope
+        elif c == "N1":
+            rows.append(case_N1(solver=solver))
+            peer = rows[-1]["felupe"]
+            extra["N1_seconds_per_iteration"] = rows[-1]["run_s"]
+            if peer:
+                extra["N1_felupe_seconds_per_iteration"] = peer["seconds_per_iteration"]
+                extra["N1_over_felupe"] = rows[-1]["ratio_to_felupe"]
+            else:
+                sys.stderr.write("  N1: FElupe is not installed (pip install felupe pypardiso): no peer figure\n")
         elif c == "F1":
             rows += case_F1()
         elif c == "D1":
             rows.append(case_D1())
             sys.stderr.write(f"  D1 verdict: {rows[-1]['verdict']}\n")
         else:
-            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1 F1 D1 robust")
+            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1 N1 F1 D1 robust")
     if rows:
         print(format_table(rows))
     for k, v in extra.items():
@@ -343,8 +424,9 @@ def register(sub):
     p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1 F1 D1) and the robustness matrix, "
                                      "table + JSON")
     p.add_argument("--cases", default="B1,R1,R2,G1,S1",
-                   help="comma-separated subset of B1,R1,R2,G1,S1,F1,D1, or robust (the solver robustness matrix); "
-                        "F1 and D1 time whole dejax fit / diagnose commands")
+                   help="comma-separated subset of B1,R1,R2,G1,S1,N1,F1,D1, or robust (the solver robustness matrix); "
+                        "F1 and D1 time whole dejax fit / diagnose commands, N1 one Newton iteration of R2 beside "
+                        "FElupe's cube (when FElupe is installed)")
     p.add_argument("--select", default="", help="robust: keep the cases whose name contains one of these "
                                                 "comma-separated substrings (e.g. 'uniaxial,block')")
     p.add_argument("--torsional-mesh", type=_mesh, default=(48, 8, 2), help="robust: torsional strip mesh")
