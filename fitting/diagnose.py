@@ -313,7 +313,8 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[TraceData],
                 max_iter: int = 8, fixed: Mapping | None = None, rtol: float = 1e-4, z0=None):
     """Bounded Levenberg-Marquardt (``fitting.least_squares``) over the parameters of the
     effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
-    Jacobian (so the one compiled ``simulate`` is reused); others in ``fixed`` held. Starts
+    Jacobian at the start and the solution, Broyden-updated between them (so the one
+    compiled ``simulate`` is reused); others in ``fixed`` held. Starts
     from the best of the off values, the effects' start values and ``z0`` (e.g. the
     screening's linearized optimum). At most ``max_iter`` evaluations
     besides the Jacobians'; stops when an accepted step lowers the SSE by less than
@@ -341,7 +342,7 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[TraceData],
             best_z, best_sse = z, float(r @ r)
     res = levenberg_marquardt(resid, best_z, np.zeros(best_z.size), np.ones(best_z.size),
                               jacobian=lambda z, r: _fd_jacobian(resid_many, z, r), max_evals=max_iter + 1,
-                              ftol=rtol, xtol=1e-7)
+                              ftol=rtol, xtol=1e-7, broyden=True)
     z, sse, J = res.x, res.cost, res.J
     # Gauss-Newton covariance in natural units
     vals = _values_of(plist, z, names, fixed)

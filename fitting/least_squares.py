@@ -12,9 +12,14 @@ minimizes ``|r(x)|^2`` over the box ``lower <= x <= upper``.
   scaling, floored), and is projected onto the box; ``lam`` follows Nielsen's rule
   (``lam *= max(1/3, 1 - (2 rho - 1)^3)`` on success, doubling growth on failure) with
   ``rho`` the actual over the predicted reduction of the projected step.
-* Stops when the relative reduction of ``|r|^2`` of an accepted step is below ``ftol``,
-  the step is below ``xtol`` (inf-norm), the projected gradient is below ``gtol``, or
-  after ``max_evals`` evaluations of ``fun``.
+* Stops when the relative reduction of ``|r|^2`` of an accepted step, or the one the
+  linear model predicts for the next step, is below ``ftol``, the step is below ``xtol``
+  (inf-norm), the projected gradient is below ``gtol``, or after ``max_evals``
+  evaluations of ``fun``.
+* ``broyden=True`` (with ``jacobian``): the Jacobian is computed at the start and at the
+  solution (for the covariance), between them updated by Broyden's rank-one rule after
+  every accepted step and recomputed after a rejected one, so that a finite-difference
+  Jacobian costs k evaluations at a few points rather than at every accepted step.
 
 Why a host loop rather than ``optimistix.LevenbergMarquardt``: the simulations behind
 ``fun`` are compiled once per trace and run one after another (a jitted least-squares
@@ -70,6 +75,7 @@ def levenberg_marquardt(
     gtol: float = 1e-12,
     lam0: float = 1e-3,
     callback: Callable | None = None,
+    broyden: bool = False,
 ) -> LeastSquaresResult:
     """Minimize |fun(x)|^2 over lower <= x <= upper (see the module docstring).
 
@@ -87,6 +93,7 @@ def levenberg_marquardt(
     if callback is not None:
         callback(n_evals, x, cost, True)
     lam, nu = None, 2.0
+    fresh = True  # J is the true Jacobian at x (not a Broyden update)
     message, converged = "evaluation budget exhausted", False
     while True:
         g = J.T @ r
@@ -108,6 +115,9 @@ def levenberg_marquardt(
             message, converged = "step below xtol", True
             break
         predicted = -(2.0 * g @ step + step @ A @ step)
+        if 0 <= predicted <= ftol * cost:
+            message, converged = "predicted reduction below ftol", True
+            break
         r_new, J_new = _split(fun(x_new))
         n_evals += 1
         cost_new = float(r_new @ r_new) if np.all(np.isfinite(r_new)) else np.inf
@@ -116,14 +126,19 @@ def levenberg_marquardt(
         history.append((n_evals, cost_new, lam, accepted))
         if callback is not None:
             callback(n_evals, x_new, cost_new, accepted)
+        if broyden and J_new is None and accepted:
+            J = J + np.outer(r_new - r - J @ step, step) / float(step @ step)  # rank-one secant update
+            fresh = False
+        if broyden and not accepted and not fresh:  # a failed step with an updated Jacobian: recompute it
+            J, n_jac, fresh = np.asarray(jacobian(x, r), dtype=float), n_jac + 1, True
         if accepted:
             reduction = (cost - cost_new) / max(cost, 1e-300)
             x, r, cost = x_new, r_new, cost_new
-            if J_new is None:
+            if J_new is None and not broyden:
                 J_new, n_jac = np.asarray(jacobian(x, r), dtype=float), n_jac + 1
-            else:
+            elif J_new is not None:
                 n_jac += 1
-            J = J_new
+            J = J if J_new is None else J_new
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
             if reduction <= ftol:
@@ -132,4 +147,6 @@ def levenberg_marquardt(
         else:
             lam *= nu
             nu *= 2.0
+    if broyden and not fresh:  # the covariance needs the true Jacobian
+        J, n_jac = np.asarray(jacobian(x, r), dtype=float), n_jac + 1
     return LeastSquaresResult(x, r, J, cost, cost0, n_evals, n_jac, history, message, converged)

@@ -226,11 +226,29 @@ def test_levenberg_marquardt_on_a_nonlinear_problem_with_bounds_and_failures():
         r = model(x) - y
         return (np.full_like(r, np.nan), None) if x[1] > 3.0 else (r, jac(x))  # "failed simulation" region
 
-    res = levenberg_marquardt(fun, [1.0, 0.2, 0.0], lo, hi, max_evals=60, xtol=1e-12)
+    res = levenberg_marquardt(fun, [1.0, 0.2, 0.0], lo, hi, max_evals=60, xtol=1e-12, ftol=1e-14)
     assert res.converged, res.message
     np.testing.assert_allclose(res.x, ref, rtol=1e-7)
     bounded = levenberg_marquardt(lambda x: (model(x) - y, jac(x)), [1.0, 0.2, 0.0], lo, [10.0, 1.0, 1.0],
                                   max_evals=60)
     assert bounded.x[1] == 1.0 and bounded.cost > res.cost
+    # Jacobian by a callback (finite differences, as the diagnosis), exact or Broyden-updated:
+    # the same optimum; Broyden needs fewer Jacobians, the last one exact at the solution
+    counted = []
+
+    def fd(x, r, h=1e-7):
+        counted.append(1)
+        return np.stack([(model(x + h * e) - y - r) / h for e in np.eye(3)], 1)
+
+    n_fd = {}
+    for broyden in (False, True):
+        counted.clear()
+        res_b = levenberg_marquardt(lambda x: model(x) - y, [1.0, 0.2, 0.0], lo, hi, jacobian=fd, max_evals=80,
+                                    xtol=1e-12, ftol=1e-14, broyden=broyden)
+        assert res_b.converged, res_b.message
+        np.testing.assert_allclose(res_b.x, ref, rtol=1e-6)
+        np.testing.assert_allclose(res_b.J, jac(res_b.x), rtol=1e-4, atol=1e-6)
+        n_fd[broyden] = len(counted)
+    assert n_fd[True] < n_fd[False]
     with pytest.raises(FloatingPointError):
         levenberg_marquardt(lambda x: np.full(3, np.inf), [1.0], [0.0], [2.0], jacobian=lambda x, r: np.ones((3, 1)))
