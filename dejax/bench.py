@@ -199,7 +199,11 @@ try:
     rc = main(sys.argv[1:])
 except SystemExit as e:
     rc = e.code
-print(f"__peak_rss_kb {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}", file=sys.stderr)
+try:  # this process's own high-water mark (ru_maxrss would include the parent's memory at fork on Linux)
+    peak = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(f"__peak_rss_kb {peak}", file=sys.stderr)
 sys.exit(rc)
 """
 
