@@ -221,6 +221,21 @@ def _fns(forward, free: tuple, fixed: tuple):
     return fns
 
 
+def _exported(resid_jac, forward, free, params0, args):
+    """``resid_jac`` loaded from / saved to the exported-program cache (``dejax.compile_cache.
+    exported_call``) when the compilation cache is on: a second identical fit skips tracing."""
+    import dejax
+    import fitting
+    from dejax import compile_cache
+
+    if not args or not compile_cache.enabled() or not isinstance(forward, eqx.Module):
+        return resid_jac  # (a plain function's identity is no key across processes)
+    fixed = tuple(k for k in params0 if k not in free)
+    key = (f"fit.residual_and_jacobian|{compile_cache.content_digest(forward)}|{free}|{fixed}|"
+           f"{compile_cache.source_digest(dejax, fitting)}")
+    return compile_cache.exported_call(resid_jac, args, key)
+
+
 # ----------------------------------------------------------------------------- result
 
 
@@ -573,6 +588,8 @@ def _fit_lm(forward, resid_jac, free, params0, p0, lo, hi, fixed_vals, targets, 
 
     failing = []
     last = {}  # the evaluation at the last point: name -> residuals (unpadded)
+    resid_jac = _exported(resid_jac, forward, free, params0, (jnp.log(jnp.asarray(p0)), fixed_vals)
+                          + padded[targets[0].name] if targets else ())
 
     def fun(logp):
         rs, Js = [], []
