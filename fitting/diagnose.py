@@ -13,8 +13,8 @@ viscous units, see ``fitting.effects``) and measured traces with role "fit" or "
     least-squares fit of the baseline residuals on its columns (a score-type test: the
     SSE and BIC the first-order model predicts). The best ``fit_top`` candidates (and the
     best pair when its screened BIC beats the best single's by ``bic_threshold``) are then
-    fitted on the fit traces (their parameters only, the baseline held; start = the best
-    of the off values, the effects' start values and the screening's step; bounded
+    fitted on the fit traces (their parameters only, the baseline held; start = the better
+    of the off values and the screening's step; bounded
     Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
     forward-difference Jacobian, so the one compiled ``simulate`` is reused), and ranked:
     significant effects first (Delta BIC < -``bic_threshold``), within them by the holdout
@@ -314,9 +314,9 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[TraceData],
     """Bounded Levenberg-Marquardt (``fitting.least_squares``) over the parameters of the
     effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
     Jacobian at the start and the solution, Broyden-updated between them (so the one
-    compiled ``simulate`` is reused); others in ``fixed`` held. Starts
-    from the best of the off values, the effects' start values and ``z0`` (e.g. the
-    screening's linearized optimum). At most ``max_iter`` evaluations
+    compiled ``simulate`` is reused); others in ``fixed`` held. Starts from the better of
+    the off values and ``z0`` (e.g. the screening's linearized optimum), without ``z0``
+    of the off values and the effects' start values. At most ``max_iter`` evaluations
     besides the Jacobians'; stops when an accepted step lowers the SSE by less than
     ``rtol`` (relative). Returns (values, stderr, sse, J)."""
     from .least_squares import levenberg_marquardt
@@ -331,9 +331,10 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[TraceData],
     def resid(z):
         return resid_many([z])[0]
 
-    # starts: the off values, the effects' start values (and z0); keep the best
+    # starts: the off values (the baseline, cached) and z0 when given, else the effects'
+    # start values; keep the better
     cands = [np.array([_z_off(p, start.get(n, {}).get(p.name, getattr(p, src))) for n, p in plist])
-             for src in ("off", "start")]
+             for src in (("off",) if z0 is not None else ("off", "start"))]
     if z0 is not None:
         cands.append(np.clip(np.asarray(z0, dtype=float), 0.0, 1.0))
     best_z, best_sse = None, np.inf
