@@ -16,7 +16,8 @@ viscous units, see ``fitting.effects``) and measured traces with role "fit" or "
     fitted on the fit traces (their parameters only, the baseline held; start = the better
     of the off values and the screening's step; bounded
     Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
-    forward-difference Jacobian, so the one compiled ``simulate`` is reused), and ranked:
+    forward-difference Jacobian, Broyden-updated between its evaluations, so the one
+    compiled ``simulate`` is reused), and ranked:
     significant effects first (Delta BIC < -``bic_threshold``), within them by the holdout
     RMS; the screened-out ones follow with their linearized figures, never chosen.
     Gauss-Newton standard errors s^2 (J^T J)^-1 at the optimum.
