@@ -249,13 +249,14 @@ def case_F1() -> list[dict]:
 
     toml = _example("vhb4910_uniaxial.toml")
     with tempfile.TemporaryDirectory() as tmp:
-        runs = {}
+        runs, fits = {}, {}
         for label in ("cold", "warm"):
             out = Path(tmp) / f"fit_{label}"
             runs[label] = run_command(["fit", str(toml), "--out", str(out), "--no-plots", "--quiet"], Path(tmp) / "cache")
-            fit = json.loads((out / "fit.json").read_text())
+            fits[label] = json.loads((out / "fit.json").read_text())
         rows = []
         for label, r in runs.items():
+            fit = fits[label]
             rows.append(_command_row(f"F1 fit example ({label} cache)", {label: r}, evaluations=fit["n_evals"],
                                      rms=fit["rms"], params={k: fit["params"][k] for k in fit["free"]}))
     return rows
