@@ -127,6 +127,21 @@ def build_parser() -> argparse.ArgumentParser:
     _common_solver_args(t, dt=1e-2)
     t.set_defaults(run_scenario=_run_torsional)
 
+    e = rsub.add_parser("experiment", help="an experiment file (TOML + CSV, e.g. dejax fit's fitted.toml) under "
+                                           "one trace's loading; short form: dejax run FILE.toml",
+                        description="Simulate an experiment file's scenario with its material and geometry under "
+                                    "the loading of one of its traces (its voltage column, else its loading table; "
+                                    "uniaxial: its stretch), from 0 to the trace's last time ([solver] t_end if "
+                                    "given). --dt, --dt-min, --rho-inf, --damping, --gauss and --newton-tol "
+                                    "default to the file's [solver] (else dt = the trace's span / 200, the "
+                                    "defaults below). 'dejax run FILE.toml ...' is short for 'dejax run "
+                                    "experiment FILE.toml ...'.")
+    e.add_argument("experiment", help="experiment TOML file (docs/experiment-format.md)")
+    e.add_argument("--trace", default=None, help="name of the trace whose loading drives the run (default: the "
+                                                 "first [[traces]])")
+    _common_solver_args(e, dt=None)
+    e.set_defaults(run_scenario=_run_experiment, rho_inf=None, damping=None, newton_tol=None, dt_min=None)
+
     v = sub.add_parser("verify", help="run the verification cases against independent references")
     v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
     v.add_argument("--json", default=None, help="also write the table as JSON to this path")
@@ -361,6 +376,30 @@ def _run_torsional(args):
     return _run_problem(problem, args.t_end or args.t_ramp, args.dt, args, ["twist_angle"], args.solver)
 
 
+def _run_experiment(args):
+    """``dejax run experiment FILE.toml``: the experiment under one trace's loading (``fitting.experiment.
+    experiment_run``); a missing or invalid file or an unknown trace raises ValueError (exit 2) before any
+    computation."""
+    from fitting.data import load_experiment
+    from fitting.experiment import experiment_run
+
+    exp = load_experiment(args.experiment)  # DataError (a ValueError): exit 2, nothing computed
+    setup = experiment_run(exp, args.trace, dt=args.dt, dt_min=args.dt_min, rho_inf=args.rho_inf,
+                           damping=args.damping, gauss_order=args.gauss, newton_tol=args.newton_tol,
+                           volumetric=args.volumetric)
+    run_args = argparse.Namespace(**{**vars(args), **setup.settings})
+    return _run_problem(setup.problem, setup.t_end, setup.settings["dt"], run_args, [setup.output])
+
+
+def expand_run_shorthand(argv: list) -> list:
+    """``dejax [options] run FILE.toml ...`` -> ``dejax [options] run experiment FILE.toml ...``;
+    any other command line unchanged."""
+    i = next((k for k, a in enumerate(argv) if not a.startswith("-")), None)
+    if i is not None and argv[i] == "run" and i + 1 < len(argv) and argv[i + 1].lower().endswith(".toml"):
+        return argv[: i + 1] + ["experiment"] + argv[i + 1:]
+    return argv
+
+
 def _cmd_verify(args):
     from .verification import cases
 
@@ -507,7 +546,7 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(argv)
+    args = parser.parse_args(expand_run_shorthand(argv))
     args.command_line = shlex.join(["dejax", *argv])
     from .results import OutputPathError
 

@@ -6,8 +6,11 @@ Modules (each imports only those above it):
   traces       ``Trace`` and the CSV reader ``load_trace_csv``
   data         experiment files (one TOML + CSV traces): ``load_experiment``, ``Experiment``
   datasets     loaders for the measured VHB curves shipped under ``data/``
+  toml_writer  TOML text of a document (``dumps``) and atomic file writes
   fit          parameter identification (optax Adam, then L-BFGS) and ``FitResult``
-  experiment   forward models of fits (uniaxial, block, rolled) from experiment files
+  fitted       the fitted experiment file ``fitted.toml`` that ``dejax fit`` writes
+  experiment   forward models of fits (uniaxial, block, rolled) from experiment files;
+               the run of an experiment under one trace's loading (``dejax run FILE.toml``)
   sensitivity  forward-mode design sensitivities of the rolled tube
   effects      the library of candidate unmodelled effects
   diagnose     where the sim-to-real gap lies, which effect explains it, how far it shrinks

@@ -1,7 +1,7 @@
 """The command-line verbs of the fitting package, registered by ``dejax.cli``:
 
 * ``dejax fit experiment.toml --out DIR``: identify the ``[fit] free`` parameters
-  (``fitting.experiment``, ``fitting.fit``);
+  (``fitting.experiment``, ``fitting.fit``); DIR/fit.json and DIR/fitted.toml (``fitting.fitted``);
 * ``dejax sensitivity --params h,L,mu_inf``: forward-mode design sensitivities of the
   rolled tube (``fitting.sensitivity``);
 * ``dejax diagnose experiment.toml --out DIR``: where the sim-to-real gap lies and which
@@ -28,6 +28,7 @@ from . import experiment
 from . import report
 from . import sensitivity as S
 from .data import load_experiment
+from .fitted import FITTED_NAME
 from .schema import DataError
 
 
@@ -56,7 +57,8 @@ def fit_handler(args) -> int:
     if args.quiet:
         print(res.table())
     if args.out:
-        print(f"wrote {Path(args.out) / 'fit.json'}")
+        print(f"wrote {Path(args.out) / 'fit.json'} and {Path(args.out) / FITTED_NAME} (the experiment at the fitted "
+              f"values: dejax run / diagnose / fit accept it)")
     return 0
 
 
@@ -64,9 +66,11 @@ def register_fit(subparsers) -> argparse.ArgumentParser:
     """Add the ``fit`` verb: ``dejax fit experiment.toml --out DIR``."""
     p = subparsers.add_parser("fit", help="fit material parameters to an experiment file (TOML + CSV)",
                               description="Fit the [fit] free parameters of an experiment TOML to its 'fit' "
-                                          "traces; report held-out errors; write fit.json and PNGs to --out.")
+                                          "traces; report held-out errors; write fit.json, fitted.toml (the "
+                                          "experiment file at the fitted values, standard errors in comments and "
+                                          "[fit.result]) and PNGs to --out.")
     p.add_argument("experiment", help="experiment TOML file")
-    p.add_argument("--out", default=None, help="output folder (fit.json, PNG plots)")
+    p.add_argument("--out", default=None, help="output folder (fit.json, fitted.toml, PNG plots)")
     p.add_argument("--optimizer", choices=("lm", "adam-lbfgs"), default=None,
                    help="Levenberg-Marquardt on the forward-mode Jacobian (at most max_iter evaluations), or "
                         "optax Adam then L-BFGS (default: [fit] optimizer, else lm; adam-lbfgs when --adam-steps "
@@ -79,7 +83,7 @@ def register_fit(subparsers) -> argparse.ArgumentParser:
                    help="time steps per trace (default: from the data / [solver] dt)")
     p.add_argument("--max-points", type=int_at_least("--max-points", 2), default=None,
                    help="subsample each trace to at most this many points (default: all)")
-    p.add_argument("--no-plots", action="store_true", help="write fit.json only")
+    p.add_argument("--no-plots", action="store_true", help="write fit.json and fitted.toml only")
     p.add_argument("--quiet", action="store_true", help="print only the final table")
     p.set_defaults(func=fit_handler)
     return p

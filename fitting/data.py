@@ -92,8 +92,8 @@ Sections and keys
 Unknown sections or keys are errors (typo protection): the message lists
 the allowed ones. The allowed sets are the ``fitting.schema`` constants ``SECTIONS``,
 ``EXPERIMENT_KEYS``, ``GEOMETRY_KEYS`` (per scenario), ``MATERIAL_KEYS``,
-``UNIT_KEYS``, ``FIT_KEYS``, ``SOLVER_KEYS``, ``TRACE_KEYS``, ``LOADING_KINDS``;
-extend them there when a new option is implemented.
+``UNIT_KEYS``, ``FIT_KEYS``, ``FIT_RESULT_KEYS``, ``SOLVER_KEYS``, ``TRACE_KEYS``,
+``LOADING_KINDS``; extend them there when a new option is implemented.
 
 ``[experiment]`` (required): ``name`` (str, required), ``scenario`` (required,
 one of ``SCENARIOS``), ``description`` (str).
@@ -117,7 +117,9 @@ one of ``SCENARIOS``), ``description`` (str).
 (table name -> [lower, upper]), ``scale`` ("log" | "linear"), ``loss`` (str),
 ``features`` (list of str), ``weights`` (table name -> number),
 ``optimizer`` (str), ``max_iter`` (int > 0), ``tol`` (number > 0),
-``learning_rate`` (number > 0).
+``learning_rate`` (number > 0), ``result`` (table parameter name -> table of
+``FIT_RESULT_KEYS``: what ``dejax fit`` found, written in its ``fitted.toml``; form checked,
+kept as ``FitSpec.result``, read by no verb).
 
 Parameter names: ``mu_inf``, ``K_inf``, ``Jm_inf``, ``eps``, ``rho``; per
 viscous unit ``mu_i``, ``K_i``, ``Jm_i``, ``eta_i`` with i = 1..N (1-based,
@@ -184,10 +186,10 @@ from typing import Any, Mapping
 
 from dejax import parameters as mp
 
-from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, GEOMETRY_ALTERNATIVE, GEOMETRY_KEYS, GEOMETRY_OPTIONAL,
-                     GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_SCALARS, OPTIMIZERS, ROLES, SCENARIOS, SECTIONS, SOLVER_KEYS,
-                     STRICTLY_POSITIVE, TRACE_KEYS, TRACE_REQUIRED, UNIT_KEYS, DataError, check_loading, fmt_list,
-                     is_number, suggest)
+from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, FIT_RESULT_KEYS, GEOMETRY_ALTERNATIVE, GEOMETRY_KEYS,
+                     GEOMETRY_OPTIONAL, GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_SCALARS, OPTIMIZERS, ROLES, SCENARIOS,
+                     SECTIONS, SOLVER_KEYS, STRICTLY_POSITIVE, TRACE_KEYS, TRACE_REQUIRED, UNIT_KEYS, DataError,
+                     check_loading, fmt_list, is_number, suggest)
 from .traces import Trace, load_trace_csv
 
 try:
@@ -195,7 +197,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the tomli backport (a dependency there)
     import tomli as tomllib
 
-__all__ = ["FitSpec", "Experiment", "load_experiment"]
+__all__ = ["FitSpec", "Experiment", "load_experiment", "read_document"]
 
 
 # ---------------------------------------------------------------------------
@@ -206,11 +208,13 @@ __all__ = ["FitSpec", "Experiment", "load_experiment"]
 @dataclass(frozen=True, eq=False)
 class FitSpec:
     """The ``[fit]`` section: free parameter names (in order), their bounds
-    (name -> (lower, upper)) and the remaining options as given."""
+    (name -> (lower, upper)), the remaining options as given and the ``[fit.result]`` of a
+    fitted file (name -> ``FIT_RESULT_KEYS`` as given)."""
 
     free: tuple[str, ...] = ()
     bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     options: Mapping[str, Any] = field(default_factory=dict)
+    result: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,12 +361,9 @@ class _Toml:
         return int(v) if integer else float(v)
 
 
-def load_experiment(path) -> Experiment:
-    """Load and validate an experiment TOML file and its CSV traces.
-
-    Raises ``DataError`` (file, key or row/column named) on any problem; see
-    the module docstring for the schema.
-    """
+def read_document(path) -> tuple[str, dict]:
+    """The text of a TOML file and its parsed document (not validated); DataError naming
+    the file when it is missing, empty or not TOML."""
     path = Path(path)
     if not path.is_file():
         raise DataError("experiment file not found", file=path)
@@ -370,9 +371,19 @@ def load_experiment(path) -> Experiment:
     if not text.strip():
         raise DataError("empty experiment file", file=path)
     try:
-        doc = tomllib.loads(text)
+        return text, tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise DataError(f"invalid TOML: {e}", file=path) from None
+
+
+def load_experiment(path) -> Experiment:
+    """Load and validate an experiment TOML file and its CSV traces.
+
+    Raises ``DataError`` (file, key or row/column named) on any problem; see
+    the module docstring for the schema.
+    """
+    path = Path(path)
+    text, doc = read_document(path)
     tf = _Toml(path, text)
     tf.check_keys(doc, SECTIONS, "")
     for sec in ("experiment", "material", "traces"):
@@ -586,9 +597,15 @@ def _load_fit(tf: _Toml, doc, params: dict, material) -> FitSpec:
             raise tf.error(f"initial value {name} = {v:g} lies outside its bounds [{lo:g}, {hi:g}]", key)
         bounds[name] = (lo, hi)
 
+    result = {}
+    for name, entry in tf.table(f.get("result", {}), "fit.result").items():
+        key = f"fit.result.{name}"
+        check_name(name, key)
+        result[name] = _fit_result_entry(tf, tf.table(entry, key), key)
+
     options = {}
     for k, v in f.items():
-        if k in ("free", "bounds"):
+        if k in ("free", "bounds", "result"):
             continue
         key = f"fit.{k}"
         if k == "scale":
@@ -615,7 +632,17 @@ def _load_fit(tf: _Toml, doc, params: dict, material) -> FitSpec:
         elif k in ("tol", "learning_rate"):
             v = tf.number(f, k, "fit", lower=0.0)
         options[k] = v
-    return FitSpec(free=tuple(free), bounds=bounds, options=options)
+    return FitSpec(free=tuple(free), bounds=bounds, options=options, result=result)
+
+
+def _fit_result_entry(tf: _Toml, entry: dict, key: str) -> dict:
+    """One parameter's ``[fit.result]`` table, its keys and types checked (``FIT_RESULT_KEYS``)."""
+    tf.check_keys(entry, FIT_RESULT_KEYS, key)
+    for k, v in entry.items():
+        kind = FIT_RESULT_KEYS[k]
+        if (kind == "number" and not is_number(v)) or (kind == "string" and not isinstance(v, str)):
+            raise tf.error(f"'{k}' must be a {kind}, got {v!r}", f"{key}.{k}")
+    return {k: float(v) if FIT_RESULT_KEYS[k] == "number" else v for k, v in entry.items()}
 
 
 def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:

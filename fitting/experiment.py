@@ -9,11 +9,17 @@
 * ``uniaxial_target(...)``, ``hossain_target(peak, rate, ...)``: Targets for fitting.fit.
 * ``from_experiment(exp)``: (forward, params0, free, bounds, targets, holdout, options)
   from a ``fitting.data.Experiment``.
+* ``experiment_run(exp, trace)``: the ``Problem`` of ``dejax run experiment.toml``: the
+  experiment's scenario, material and geometry under one trace's loading, with its
+  ``[solver]`` settings.
 
 Every trace of one forward is simulated on the same number of steps N (dt =
 T / N varies between traces) so that compiled code is shared.
 """
 from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -21,12 +27,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from dejax import integrate as it
-from dejax import parameters, scenarios
+from dejax import loads, parameters, scenarios
 
 from .fit import Target, fit
 
 __all__ = ["Interp", "UniaxialForward", "BlockForward", "RolledForward", "uniaxial_target", "hossain_target",
-           "from_experiment", "run_experiment"]
+           "from_experiment", "run_experiment", "experiment_run", "RunSetup"]
 
 
 class Interp(eqx.Module):
@@ -187,6 +193,13 @@ turning point): the stress of the example fit's traces within 0.15 % of their am
 a 16x finer grid (max), 0.03 % RMS."""
 
 
+def uniaxial_steps(stretch) -> int:
+    """Default steps of a uniaxial history: ``STRETCH_PER_STEP`` of stretch travelled per
+    step, at least 50."""
+    travel = float(np.sum(np.abs(np.diff(np.asarray(stretch, dtype=float)))))
+    return max(int(np.ceil(travel / STRETCH_PER_STEP)), 50)
+
+
 def uniaxial_target(name, time, stretch, stress, n_steps: int, voltage=None, max_points=None, knots=None,
                     weight=1.0) -> Target:
     """Target for ``UniaxialForward``: the measured stress at the measured times.
@@ -259,8 +272,7 @@ def _uniaxial_targets(exp, n_steps, max_points):
     pairs = []
     for tr in exp.traces:
         lam = tr["stretch"]
-        dl = np.sum(np.abs(np.diff(lam)))
-        N = int(n_steps) if n_steps is not None else max(int(np.ceil(dl / STRETCH_PER_STEP)), 50)
+        N = int(n_steps) if n_steps is not None else uniaxial_steps(lam)
         v = tr.voltage()
         if fwd.voltage and v is None:
             v = np.zeros_like(tr.time)
@@ -321,12 +333,14 @@ scenarios ``dejax fit`` supports."""
 
 def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=None, max_points=None,
                    verbose=True, plots=True, optimizer=None):
-    """Load an experiment TOML, fit it, write outputs; return the FitResult.
+    """Load an experiment TOML, fit it, write ``out``/fit.json, the plots (``plots``) and
+    ``out``/fitted.toml (``fitting.fitted``); return the FitResult.
 
     ``optimizer``: "lm" or "adam-lbfgs" (default: the file's ``[fit] optimizer``, else "lm";
     "adam-lbfgs" when ``adam_steps`` or ``lbfgs_steps`` is given). ``[fit] max_iter`` bounds
     the evaluations of lm and the iterations of adam-lbfgs (half Adam, half L-BFGS)."""
     from .data import load_experiment
+    from .fitted import write_fitted
 
     exp = load_experiment(path)
     fwd, params0, free, bounds, targets, holdout, opts = from_experiment(exp, n_steps=n_steps, max_points=max_points)
@@ -340,4 +354,110 @@ def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=No
               adam_lr=float(opts.get("learning_rate", 0.1)), verbose=verbose, method=optimizer, max_evals=max_iter)
     if out is not None:
         res.save(out, plots=plots)
+        write_fitted(exp, res, out)
     return res
+
+
+# ----------------------------------------------------------------------------- dejax run of an experiment
+
+
+class RunSetup(NamedTuple):
+    """What ``dejax run experiment.toml`` simulates: ``problem`` (a ``dejax`` Problem) from 0
+    to ``t_end`` (s) under the loading of the trace ``trace`` (its name); ``settings``: dt,
+    dt_min (s), rho_inf, newton_tol (1) for the run; ``output``: the output it reports."""
+
+    problem: scenarios.Problem
+    trace: str
+    t_end: float
+    settings: dict
+    output: str
+
+
+RUN_OUTPUT = {"block": "lateral_stretch", "rolled": "x_P", "torsional": "twist_angle", "uniaxial": "stress"}
+"""Scenario -> the output ``dejax run`` of an experiment reports at the end."""
+RUN_STEPS = 200
+"""Default steps of a voltage-driven run without ``[solver] dt`` (as ``dejax fit``)."""
+
+
+def _run_trace(exp, name):
+    """The trace ``name`` of ``exp`` (default the first); ValueError naming the file otherwise."""
+    try:
+        tr = exp.traces[0] if name is None else exp.trace(name)
+    except KeyError as e:
+        raise ValueError(e.args[0]) from None
+    if tr.time is None:
+        raise ValueError(f"{exp.path}: trace '{tr.name}' has no time column; dejax run needs one")
+    return tr
+
+
+def trace_voltage(tr):
+    """The voltage history (t -> V) of a trace: its measured column, linear between the
+    samples, else its ``loading`` table, else None."""
+    if "voltage" in tr.channels:
+        return loads.PiecewiseLinear(tr.time, tr["voltage"])
+    return None if tr.loading is None else loads.from_spec(tr.loading)
+
+
+def _trace_geometry(exp, tr) -> dict:
+    """``[geometry]`` with the trace's ``conditions`` that name geometry keys applied."""
+    from .schema import GEOMETRY_KEYS
+
+    return {**exp.geometry, **{k: v for k, v in tr.conditions.items() if k in GEOMETRY_KEYS[exp.scenario]}}
+
+
+def _scenario_problem(exp, tr, g, volt, common):
+    """The scenario's Problem with the experiment's material and geometry ``g`` under the
+    voltage history ``volt`` (and, for uniaxial, the trace's stretch)."""
+    material = parameters.from_flat(exp.parameters(), exp.n_units)
+    if exp.scenario == "block":
+        return scenarios.block(L=float(g.get("L", g.get("lx", 1e-3))), shape=tuple(g.get("mesh", (1, 1, 1))),
+                               material=material, voltage=volt, **common)
+    if exp.scenario == "rolled":
+        point = g.get("probe") if g.get("probe") in ("P", "P_outer") else "P"
+        return scenarios.rolled(material, h=g["h"], r=g["r"], L=g["L"], shape=tuple(g.get("mesh", (1, 4, 1))),
+                                point=point, voltage=volt, **common)
+    if exp.scenario == "torsional":
+        h = float(g["h"])
+        p = scenarios.torsional(material=material, thickness=h, length_ratio=g["L"] / h, width_ratio=g["W"] / h,
+                                turns=float(g.get("twist", 1.0)), shape=tuple(g.get("mesh", (48, 8, 2))), **common)
+        return dataclasses.replace(p, loading=it.Loading(voltages=(volt,)))
+    if exp.scenario == "uniaxial":
+        return scenarios.uniaxial(loads.PiecewiseLinear(tr.time, tr["stretch"]), material, voltage=volt,
+                                  lx=float(g.get("L", 1e-3)), ly=float(g.get("W", 1e-3)), lz=float(g.get("h", 1e-3)),
+                                  shape=tuple(g.get("mesh", (1, 1, 1))), **common)
+    raise ValueError(f"{exp.path}: dejax run does not support scenario {exp.scenario!r}")
+
+
+def _run_params(problem, exp, tr, volt) -> dict:
+    """The results file's parameters: the scenario's, its own loading's replaced by the
+    experiment, the trace, its peak voltage phi_max (V) and frequency freq (Hz) where known."""
+    params = {k: v for k, v in problem.params.items() if k not in ("phi_max", "t_ramp", "freq", "phibar_max")}
+    params.update(experiment=exp.name, experiment_file=str(exp.path), trace=tr.name)
+    if volt is not None:
+        params["phi_max"] = float(np.max(np.abs(np.asarray(volt(jnp.asarray(tr.time))))))
+    if tr.frequency is not None:
+        params["freq"] = tr.frequency
+    return params
+
+
+def experiment_run(exp, trace: str | None = None, dt=None, dt_min=None, rho_inf=None, damping=None,
+                   gauss_order=None, newton_tol=None, volumetric: str = "mixed") -> RunSetup:
+    """The run of ``exp`` (``fitting.data.Experiment``) under the loading of its trace
+    ``trace`` (name; default the first) from 0 to ``[solver] t_end`` or the trace's last
+    time. Settings given here win over ``[solver]`` (dt, dt_min s; rho_inf, newton_tol 1;
+    damping 1/s; gauss_order), whose defaults are: dt the trace's span over 200 steps (uniaxial:
+    ``uniaxial_steps``), dt_min 1e-6 s, the scenario's rho_inf, newton_tol 1e-6, no damping,
+    3 Gauss points. ValueError (naming the file) for an unknown trace or scenario."""
+    tr = _run_trace(exp, trace)
+    s = exp.solver
+    t_end = float(s.get("t_end", tr.time[-1]))
+    steps = uniaxial_steps(tr["stretch"]) if exp.scenario == "uniaxial" else RUN_STEPS
+    common = dict(gauss_order=int(gauss_order or s.get("gauss_order", 3)),
+                  damping=float(damping if damping is not None else s.get("damping", 0.0)), volumetric=volumetric)
+    volt = trace_voltage(tr)
+    problem = _scenario_problem(exp, tr, _trace_geometry(exp, tr), volt, common)
+    problem = dataclasses.replace(problem, params=_run_params(problem, exp, tr, volt))
+    settings = dict(dt=float(dt or s.get("dt", t_end / steps)), dt_min=float(dt_min or s.get("dt_min", 1e-6)),
+                    rho_inf=float(rho_inf if rho_inf is not None else s.get("rho_inf", problem.rho_inf)),
+                    newton_tol=float(newton_tol or s.get("newton_tol", 1e-6)))
+    return RunSetup(problem, tr.name, t_end, settings, RUN_OUTPUT[exp.scenario])

@@ -58,6 +58,7 @@ import optax
 from dejax import parameters
 
 from .schema import OPTIMIZERS
+from .toml_writer import write_atomic
 
 __all__ = ["Target", "FitResult", "fit", "apply_params", "LogBox"]
 
@@ -238,6 +239,16 @@ def _exported(resid_jac, forward, free, params0, args):
 
 # ----------------------------------------------------------------------------- result
 
+PARAMETER_UNIT = "units[name]"
+KEY_UNITS = {
+    "params": PARAMETER_UNIT, "initial": PARAMETER_UNIT, "bounds": PARAMETER_UNIT, "stderr": PARAMETER_UNIT,
+    "rel_stderr": "1", "correlation": "1", "cov_log": "1 (of log p)", "loss": "1", "loss0": "1",
+    "history": "[iteration, stage, loss (1)]", "rms": "rms: rms[trace].unit; rel_rms: 1; n: samples",
+    "n_evals": "1", "seconds": "s",
+}
+"""fit.json's ``key_units``: the unit of every numeric entry of ``FitResult.to_dict()`` ("1" =
+dimensionless; ``units[name]``: each parameter's unit in ``units``)."""
+
 
 @dataclasses.dataclass
 class FitResult:
@@ -294,15 +305,14 @@ class FitResult:
             stderr=self.stderr, rel_stderr=self.rel_stderr, correlation=np.asarray(self.corr).tolist(),
             cov_log=np.asarray(self.cov_log).tolist(), loss=self.loss, loss0=self.loss0,
             history=[list(h) for h in self.history], rms=self.rms, n_evals=self.n_evals, seconds=self.seconds,
-            at_bound=self.at_bound, units={k: parameters.unit(k) for k in self.params},
+            at_bound=self.at_bound, units={k: parameters.unit(k) for k in self.params}, key_units=KEY_UNITS,
         )
 
     def save(self, out_dir, plots: bool = True) -> list[Path]:
         """Write fit.json (and PNG plots); return the written paths."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        paths = [out / "fit.json"]
-        paths[0].write_text(json.dumps(_jsonable(self.to_dict()), indent=2))
+        paths = [write_atomic(out / "fit.json", json.dumps(_jsonable(self.to_dict()), indent=2))]
         if plots:
             paths += self.plot(out)
         return paths

@@ -2,8 +2,8 @@
 
 The allowed sets are the module constants ``SECTIONS``, ``EXPERIMENT_KEYS``,
 ``GEOMETRY_KEYS`` (per scenario), ``MATERIAL_KEYS``, ``UNIT_KEYS``, ``FIT_KEYS``,
-``SOLVER_KEYS``, ``TRACE_KEYS``, ``LOADING_KINDS``; extend them there when a new option is
-implemented. ``DataError`` locates every problem (file, TOML key, CSV row and column);
+``FIT_RESULT_KEYS``, ``SOLVER_KEYS``, ``TRACE_KEYS``, ``LOADING_KINDS``; extend them there
+when a new option is implemented. ``DataError`` locates every problem (file, TOML key, CSV row and column);
 ``check_loading`` validates a loading table and ``loading_voltage`` evaluates one. The file
 format itself: ``fitting.data`` and ``docs/experiment-format.md``.
 """
@@ -52,7 +52,12 @@ UNIT_KEYS = mp.UNIT_KEYS
 STRICTLY_POSITIVE = {"mu_inf": True, "K_inf": False, "Jm_inf": True, "eps": False, "rho": True,
              "mu": True, "K": False, "Jm": True, "eta": True}
 FIT_KEYS = ("free", "bounds", "scale", "loss", "features", "weights", "optimizer", "max_iter",
-            "tol", "learning_rate")
+            "tol", "learning_rate", "result")
+FIT_RESULT_KEYS = {"value": "number", "unit": "string", "stderr": "number", "rel_stderr": "number",
+                   "initial": "number"}
+"""``[fit.result]``: parameter name -> these keys (all optional), as ``dejax fit`` writes them in
+``fitted.toml`` (value, standard error and initial value in the parameter's unit, the relative
+standard error in 1). Validated for form only; no verb reads them."""
 OPTIMIZERS = ("lm", "adam-lbfgs")
 """``[fit] optimizer`` values (``fitting.fit.METHODS``): Levenberg-Marquardt, optax Adam then L-BFGS."""
 SOLVER_KEYS = ("dt", "dt_min", "t_end", "n_cycles", "rho_inf", "damping", "gauss_order",

@@ -67,6 +67,25 @@ def test_directory_as_output_exit_2(tmp_path, capsys):
 # a failed run: tests/test_cli_ux.py::test_failed_run_keeps_its_trajectory_and_progress_stays_honest
 
 
+@pytest.mark.parametrize("argv, expanded", [
+    (["run", "fit/fitted.toml", "--out", "a.h5"], ["run", "experiment", "fit/fitted.toml", "--out", "a.h5"]),
+    (["--no-compile-cache", "run", "E.TOML"], ["--no-compile-cache", "run", "experiment", "E.TOML"]),
+    (["run", "experiment", "e.toml"], None),
+    (["run", "block", "--out", "x.toml"], None),
+    (["fit", "e.toml"], None),
+    (["run"], None),
+    ([], None),
+])
+def test_run_of_a_toml_file_is_short_for_run_experiment(argv, expanded):
+    assert cli.expand_run_shorthand(argv) == (argv if expanded is None else expanded)
+
+
+def test_run_experiment_options_default_to_the_file():
+    """--dt, --rho-inf, ... left out are None: the experiment's [solver] decides (its run: tests/test_cli_e2e.py)."""
+    args = cli.build_parser().parse_args(cli.expand_run_shorthand(["run", "f.toml", "--trace", "t", "--out", "o.h5"]))
+    assert (args.scenario, args.experiment, args.trace, args.dt, args.rho_inf) == ("experiment", "f.toml", "t", None, None)
+
+
 def test_console_script_help():
     r = subprocess.run([sys.executable, "-m", "dejax.cli", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "run" in r.stdout and "verify" in r.stdout

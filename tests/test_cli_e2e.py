@@ -1,24 +1,36 @@
 """Every verb end to end at tiny size, through ``dejax.cli.main`` (issue 14, point 4).
 
-``run`` (tests/test_cli.py), ``plot`` (tests/test_plot.py) and ``sweep``
+``run`` of a scenario (tests/test_cli.py), ``plot`` (tests/test_plot.py) and ``sweep``
 (tests/test_cli_ux.py) are run end to end where their files are tested; here are
-``verify``, ``bench``, ``sensitivity``, ``fit`` and ``diagnose``. The fit and diagnose
-runs use a synthetic block experiment written here: the hyperelastic 1 mm block under a
-sine voltage, its lateral stretch from the closed-form Gent equilibrium
-(``dejax.verification.models``, independent of the finite-element code), so the truth is
-known: the fit must move mu_inf towards it and the diagnosis must find a sensor offset
-added to the data.
+``verify``, ``bench``, ``sensitivity``, ``fit``, ``run`` of the fitted experiment and
+``diagnose``. The fit and diagnose runs use a synthetic block experiment written here: the
+hyperelastic 1 mm block under a sine voltage, its lateral stretch from the closed-form Gent
+equilibrium (``dejax.verification.models``, independent of the finite-element code), so the
+truth is known: the fit must move mu_inf towards it, the run of its fitted.toml must follow
+the closed form at the fitted mu_inf, and the diagnosis must find a sensor offset added to
+the data.
 """
+import contextlib
+import io
 import json
 
 import numpy as np
 import pytest
 
 from dejax import cli
+from dejax.results import read_h5
 from dejax.verification import models
+from fitting import diagnose as dg
+from fitting.data import load_experiment
 
 MU, JM, EPS, L = 67e3, 15.0, 4e-11, 1e-3  # the paper's block (Sec. 4), hyperelastic
 FREQ, T_END, N_SAMPLES = 2.0, 0.5, 21  # one voltage cycle, 20 steps of 25 ms
+START = 1.5 * MU  # the fit's initial mu_inf (Pa)
+
+
+def _sine(phi_max, t):
+    """The traces' voltage (V) at t (s): docs/experiment-format.md's sine loading."""
+    return 0.5 * phi_max * (1.0 + np.sin(2 * np.pi * FREQ * t + 1.5 * np.pi))
 
 
 def _write_experiment(folder, mu_inf, offset=0.0):
@@ -28,7 +40,7 @@ def _write_experiment(folder, mu_inf, offset=0.0):
     t = np.linspace(0.0, T_END, N_SAMPLES)
     traces = []
     for name, role, phi_max in (("fit_14kV", "fit", 14e3), ("hold_10kV", "holdout", 10e3)):
-        phi = 0.5 * phi_max * (1.0 + np.sin(2 * np.pi * FREQ * t + 1.5 * np.pi))  # docs: sine loading
+        phi = _sine(phi_max, t)
         lam = models.gent_equibiaxial_stretch(phi, L, MU, JM, EPS) + offset
         rows = "\n".join(f"{a:.17g},{b:.17g},{c / 1e3:.17g}" for a, b, c in zip(t, lam, phi))
         (folder / f"{name}.csv").write_text("time_s,stretch,voltage_kV\n" + rows + "\n")
@@ -120,22 +132,82 @@ def test_sensitivity_writes_jacobians_that_match_finite_differences(tmp_path):
         assert S.relative_error(np.asarray(d["jacobian"][key]), fd[key]) < 1e-4, key
 
 
-def test_fit_moves_the_parameter_towards_the_truth(tmp_path, capsys):
-    start = 1.5 * MU
-    toml = _write_experiment(tmp_path, start)
-    out = tmp_path / "fit"
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """The tiny experiment fitted once (two evaluations): (its folder, the fit's --out
+    folder, what the fit printed)."""
+    folder = tmp_path_factory.mktemp("experiment")
+    toml = _write_experiment(folder, START)
+    out = folder / "fit"
     argv = ["fit", str(toml), "--out", str(out), "--adam-steps", "1", "--lbfgs-steps", "1", "--steps", "20", "--quiet"]
-    assert cli.main(argv) == 0
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        assert cli.main(argv) == 0
+    return folder, out, printed.getvalue()
+
+
+def test_fit_moves_the_parameter_towards_the_truth(fitted):
+    _, out, printed = fitted
     d = json.loads((out / "fit.json").read_text())
-    assert d["free"] == ["mu_inf"] and d["initial"] == {"mu_inf": start} and d["units"]["mu_inf"] == "Pa"
+    assert d["free"] == ["mu_inf"] and d["initial"] == {"mu_inf": START} and d["units"]["mu_inf"] == "Pa"
     assert np.isfinite(d["loss"]) and d["loss"] < d["loss0"]
     mu = d["params"]["mu_inf"]
-    assert 1e4 < mu < 1e6 and abs(np.log(mu / MU)) < 0.5 * abs(np.log(start / MU))
+    assert 1e4 < mu < 1e6 and abs(np.log(mu / MU)) < 0.5 * abs(np.log(START / MU))
     assert {k: v["role"] for k, v in d["rms"].items()} == {"fit_14kV": "fit", "hold_10kV": "holdout"}
     assert all(np.isfinite(v["rms"]) and v["n"] == N_SAMPLES for v in d["rms"].values())
     assert np.isfinite(d["stderr"]["mu_inf"]) and d["stderr"]["mu_inf"] > 0
     assert {"trace_fit_14kV.png", "trace_hold_10kV.png"} <= {p.name for p in out.iterdir()}
-    assert "mu_inf" in capsys.readouterr().out
+    assert "mu_inf" in printed
+    # every figure with its unit: the numeric entries in key_units, the parameters' in units, each RMS its own
+    assert set(d["key_units"]) == set(d) - {"free", "at_bound", "units", "key_units"}
+    assert d["key_units"]["seconds"] == "s" and d["key_units"]["stderr"] == "units[name]"
+    assert all(v["unit"] == "1" for v in d["rms"].values())  # stretch
+
+
+def test_fit_writes_the_fitted_experiment(fitted):
+    folder, out, printed = fitted
+    d = json.loads((out / "fit.json").read_text())
+    exp, new = load_experiment(folder / "tiny.toml"), load_experiment(out / "fitted.toml")
+    assert new.parameters() == dict(exp.parameters(), mu_inf=d["params"]["mu_inf"])  # the very floats of fit.json
+    assert new.fit.result == {"mu_inf": dict(value=d["params"]["mu_inf"], unit="Pa", stderr=d["stderr"]["mu_inf"],
+                                             rel_stderr=d["rel_stderr"]["mu_inf"], initial=START)}
+    assert (new.name, new.geometry, new.solver, new.fit.free, new.fit.bounds) == (
+        exp.name, exp.geometry, exp.solver, exp.fit.free, exp.fit.bounds)
+    for a, b in zip(exp.traces, new.traces, strict=True):  # the CSVs found from the fit's folder
+        assert a.source.resolve() == b.source.resolve() and np.array_equal(a["stretch"], b["stretch"])
+    text = (out / "fitted.toml").read_text()
+    assert 'file = "../fit_14kV.csv"' in text and "mu_inf = {!r}  # fitted: +- ".format(d["params"]["mu_inf"]) in text
+    assert "fitted.toml" in printed
+    dg.forward_from_experiment(new)  # what dejax diagnose reads of it (run end to end below on the original)
+
+
+def test_run_simulates_the_fitted_experiment(fitted, tmp_path):
+    _, out, _ = fitted
+    h5 = tmp_path / "sim.h5"
+    argv = ["run", str(out / "fitted.toml"), "--trace", "hold_10kV", "--dt", "0.025", "--out", str(h5), "--quiet"]
+    assert cli.main(argv) == 0
+    res = read_h5(h5)
+    a, mu = res["attrs"], json.loads((out / "fit.json").read_text())["params"]["mu_inf"]
+    assert (a["scenario"], a["experiment"], a["trace"], a["status"], int(a["steps"])) == (
+        "block", "tiny-block", "hold_10kV", "ok", 20)
+    assert a["mu_inf"] == mu and a["phi_max"] == pytest.approx(10e3, rel=1e-12)
+    t = res["time"]
+    np.testing.assert_allclose(t, np.linspace(0.0, T_END, 21), rtol=0, atol=1e-12)
+    phi = _sine(10e3, t)
+    np.testing.assert_allclose(res["outputs"]["voltage"], phi, rtol=0, atol=1e-6)
+    # the closed form at the fitted mu_inf (about 4e-8 off); at the true mu_inf it is ~1e-3 off
+    lam = models.gent_equibiaxial_stretch(phi, L, mu, JM, EPS)
+    np.testing.assert_allclose(res["outputs"]["lateral_stretch"], lam, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "{dir}/missing.toml"], "missing.toml: experiment file not found"),
+    (["run", "experiment", "{dir}/tiny.toml", "--trace", "nope"], "no trace named 'nope'; traces: fit_14kV, hold_10kV"),
+])
+def test_run_of_a_bad_experiment_exits_2_and_writes_nothing(tmp_path, capsys, argv, message):
+    _write_experiment(tmp_path, MU)
+    out = tmp_path / "sim.h5"
+    assert cli.main([a.format(dir=tmp_path) for a in argv] + ["--out", str(out)]) == 2
+    assert message in capsys.readouterr().err and not out.exists()
 
 
 def test_diagnose_finds_the_sensor_offset(tmp_path, capsys):

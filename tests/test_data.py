@@ -257,6 +257,25 @@ def test_bad_bounds(tmp_path, bounds, msg):
     assert e.key == "fit.bounds.mu_1"
 
 
+RESULT = """
+[fit.result]
+mu_1 = { value = 80e3, unit = "Pa", stderr = 1.5e3, rel_stderr = 0.01875, initial = 9e4 }
+"""
+
+
+def test_fit_result_table_is_kept_and_checked(tmp_path):
+    toml = TOML.replace("[solver]", RESULT + "\n[solver]")
+    exp = load_experiment(write(tmp_path, toml))
+    assert exp.fit.result == {"mu_1": {"value": 80e3, "unit": "Pa", "stderr": 1.5e3, "rel_stderr": 0.01875,
+                                       "initial": 9e4}}
+    assert "result" not in exp.fit.options and exp.parameters()["mu_1"] == 80e3
+    for old, new, msg in (("mu_1 = {", "mu_9 = {", "unknown parameter 'mu_9'"),
+                          ("stderr = 1.5e3", "sterr = 1.5e3", "unknown key 'sterr'"),
+                          ('unit = "Pa"', "unit = 1", "'unit' must be a string"),
+                          ("initial = 9e4", 'initial = "9e4"', "'initial' must be a number")):
+        raises(["exp.toml", "fit.result", msg], load_experiment, write(tmp_path, toml.replace(old, new)))
+
+
 def test_bounds_on_unknown_parameter(tmp_path):
     toml = TOML.replace("mu_1 = [1e3, 1e6]", "mu_3 = [1e3, 1e6]")
     raises(["exp.toml", "unknown parameter 'mu_3'"], load_experiment, write(tmp_path, toml))

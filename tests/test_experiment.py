@@ -72,3 +72,95 @@ def test_what_dejax_fit_cannot_do():
     bad = dataclasses.replace(exp, fit=dataclasses.replace(exp.fit, free=("geometry.L",)))
     with pytest.raises(ValueError, match="free parameter 'geometry.L' is not supported"):
         E.from_experiment(bad)
+
+
+# ----------------------------------------------------------------------------- dejax run of an experiment
+
+
+def _phi(setup, times):
+    """The run's voltage (V) at ``times`` (s)."""
+    return np.asarray(setup.problem.loading.voltages[0](np.asarray(times, dtype=float)))
+
+
+def test_run_of_the_tube_follows_the_chosen_trace():
+    tube = load_experiment(EXAMPLES / "tube_example.toml")
+    s = E.experiment_run(tube)  # the first trace: a loading table (sine, 25 kV, 30 Hz), no voltage column
+    p = s.problem
+    assert (p.name, s.trace, s.output) == ("rolled", "trace_30Hz", "x_P")
+    assert p.params["mesh"] == [4, 8, 1] and p.params["h"] == 2e-3 and p.params["mu_inf"] == 81e3
+    assert p.params["trace"] == "trace_30Hz" and p.params["experiment"] == "tube-example" and p.params["freq"] == 30.0
+    assert s.t_end == tube.trace("trace_30Hz").time[-1]
+    assert s.settings == {"dt": 1e-4, "dt_min": 1e-6, "rho_inf": 0.8, "newton_tol": 1e-6}  # [solver] dt, rho_inf
+    t = np.linspace(0.0, s.t_end, 7)
+    np.testing.assert_allclose(_phi(s, t), 12.5e3 * (1 + np.sin(2 * np.pi * 30.0 * t + 1.5 * np.pi)), atol=1e-6)
+    # the second trace has a voltage column (kV in the CSV): the run follows the samples; options win over [solver]
+    s = E.experiment_run(tube, "trace_10Hz", dt=1e-3, rho_inf=0.5, damping=2.0, gauss_order=2)
+    tr = tube.trace("trace_10Hz")
+    np.testing.assert_allclose(_phi(s, tr.time[::25]), tr["voltage"][::25], rtol=1e-12, atol=1e-9)
+    assert s.settings["dt"] == 1e-3 and s.settings["rho_inf"] == 0.5
+    assert s.problem.params["damping"] == 2.0 and s.problem.params["gauss_order"] == 2
+    assert s.problem.params["phi_max"] == pytest.approx(np.max(np.abs(tr["voltage"])), rel=1e-12)
+
+
+def test_run_of_the_uniaxial_example_follows_the_stretch():
+    exp = load_experiment(EXAMPLES / "vhb4910_uniaxial.toml")
+    s = E.experiment_run(exp)
+    tr = exp.traces[0]
+    assert (s.problem.name, s.trace, s.output) == ("uniaxial", tr.name, "stress") and s.problem.quasi_static
+    steps = max(int(np.ceil(np.sum(np.abs(np.diff(tr["stretch"]))) / 5e-3)), 50)  # 5e-3 of stretch per step
+    assert s.t_end == tr.time[-1] and s.settings["dt"] == pytest.approx(tr.time[-1] / steps, rel=1e-12)
+    u = np.asarray(s.problem.loading.motions[0](tr.time[::10]))
+    np.testing.assert_allclose(u, tr["stretch"][::10] - 1.0, rtol=0, atol=1e-12)
+
+
+TORSIONAL = """
+[experiment]
+name = "strip"
+scenario = "torsional"
+
+[geometry]
+L = 6e-3
+W = 2e-3
+h = 1e-3
+twist = 0.5
+mesh = [2, 2, 2]
+
+[material]
+mu_inf = 50e3
+K_inf = 5e8
+Jm_inf = 20.0
+eps = 4e-11
+rho = 1000.0
+
+[[traces]]
+file = "ramp.csv"
+columns = { time = "t", angle = "a", voltage = "v" }
+
+[[traces]]
+file = "ramp.csv"
+name = "longer"
+conditions = { L = 8e-3 }
+columns = { time = "t", angle = "a", voltage = "v" }
+"""
+
+
+def test_run_of_a_torsional_strip_takes_the_trace_voltage_and_geometry(tmp_path):
+    (tmp_path / "ramp.csv").write_text("t,a,v\n0,0,0\n0.5,0.1,300\n1,0.2,600\n")
+    (tmp_path / "strip.toml").write_text(TORSIONAL)
+    exp = load_experiment(tmp_path / "strip.toml")
+    s = E.experiment_run(exp)
+    p = s.problem.params
+    assert (s.problem.name, s.output, s.t_end, s.settings["dt"]) == ("torsional", "twist_angle", 1.0, 1.0 / 200)
+    assert (p["length"], p["width"], p["thickness"], p["turns"], p["mesh"]) == (6e-3, 2e-3, 1e-3, 0.5, [2, 2, 2])
+    assert "phibar_max" not in p and "t_ramp" not in p and p["phi_max"] == 600.0
+    np.testing.assert_allclose(_phi(s, [0.0, 0.25, 0.5, 1.0, 2.0]), [0.0, 150.0, 300.0, 600.0, 600.0], atol=1e-9)
+    assert E.experiment_run(exp, "longer").problem.params["length"] == pytest.approx(8e-3, rel=1e-12)
+
+
+def test_run_of_an_unknown_trace_or_one_without_time():
+    exp = load_experiment(EXAMPLES / "vhb4910_uniaxial.toml")
+    with pytest.raises(ValueError, match=r"vhb4910_uniaxial.toml: no trace named 'nope'; traces: vhb4910_1.5_0.05"):
+        E.experiment_run(exp, "nope")
+    timeless = dataclasses.replace(exp, traces=(dataclasses.replace(exp.traces[0], time=None),))
+    with pytest.raises(ValueError, match="has no time column; dejax run needs one"):
+        E.experiment_run(timeless)
