@@ -3,7 +3,8 @@
 Modules (each imports only those above it):
   schema       experiment-file keys, loading tables, ``DataError``
   units        channels, their SI units, unit conversion (``to_si``)
-  traces       ``Trace`` and the CSV reader ``load_trace_csv``
+  traces       ``Trace`` (the one record of a measured trace, for fits and diagnoses alike)
+               and the CSV reader ``load_trace_csv``
   data         experiment files (one TOML + CSV traces): ``load_experiment``, ``Experiment``
   datasets     loaders for the measured VHB curves shipped under ``data/``
   toml_writer  TOML text of a document (``dumps``) and atomic file writes

@@ -1,7 +1,8 @@
 """Sim-to-real gap diagnosis: where the gap lies, which unmodelled effect explains it, how far it shrinks.
 
 Inputs: a baseline forward model (a dejax ``Problem`` whose material carries two dormant
-viscous units, see ``fitting.effects``) and measured traces with role "fit" or "holdout".
+viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Trace`` with a
+``response`` channel and a commanded voltage history) with role "fit" or "holdout".
 
 (a) WHERE: baseline residuals broken down per trace/condition, per cycle, loading vs
     unloading (sign of d phi_command/dt), transient (first cycle) vs steady state, and
@@ -48,27 +49,10 @@ from dejax import integrate as it
 from dejax import loads
 
 from . import effects as fx
+from .traces import Trace
 
-__all__ = ["TraceData", "Forward", "CandidateResult", "Diagnosis", "diagnose", "estimate_noise",
+__all__ = ["Forward", "CandidateResult", "Diagnosis", "diagnose", "estimate_noise",
            "breakdown", "forward_from_experiment"]
-
-
-@dataclasses.dataclass
-class TraceData:
-    """One measured trace: t (s), y (output units), base (commanded voltage history t -> V),
-    role "fit"/"holdout", conditions (dict), freq (Hz or None)."""
-
-    name: str
-    t: np.ndarray
-    y: np.ndarray
-    base: object
-    role: str = "fit"
-    conditions: dict = dataclasses.field(default_factory=dict)
-    freq: float | None = None
-
-    @property
-    def command(self) -> np.ndarray:
-        return np.asarray(self.base(jnp.asarray(self.t)))
 
 
 class Forward:
@@ -98,30 +82,30 @@ class Forward:
         self.n_sims = 0
 
     @staticmethod
-    def _key(effects: Mapping, trace: TraceData):
+    def _key(effects: Mapping, trace: Trace):
         items = []
         for name in sorted(effects):
             if fx.get(name).kind == "model":
                 items.append((name, tuple(sorted((k, round(float(v), 15)) for k, v in effects[name].items()))))
         return (trace.name, tuple(items))
 
-    def _launch(self, effects: Mapping, trace: TraceData):
+    def _launch(self, effects: Mapping, trace: Trace):
         """Start the simulation of ``trace`` with the model effects of ``effects`` (JAX
         dispatches it asynchronously); returns what ``_finish`` turns into the output."""
         model_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "model"}
         p = fx.apply_effects(self.pieces0, model_fx)
-        loading = eqx.tree_at(lambda l: l.voltages[0].base, p.loading, trace.base)
-        n = len(trace.t) - 1
+        loading = eqx.tree_at(lambda l: l.voltages[0].base, p.loading, trace.voltage_history)
+        n = len(trace.time) - 1
         pad = max(self.pad_to or n, n)
         self.n_sims += 1
-        return p.model, loading, pad, it.simulate(p.model, loading, trace.t, self.problem.output_fn, self.scheme,
+        return p.model, loading, pad, it.simulate(p.model, loading, trace.time, self.problem.output_fn, self.scheme,
                                                   self.newton, pad_to=pad, control=None)  # fixed steps, as fits
 
-    def _finish(self, effects: Mapping, trace: TraceData, launched) -> np.ndarray:
+    def _finish(self, effects: Mapping, trace: Trace, launched) -> np.ndarray:
         model, loading, pad, sol = launched
         if not sol.ok and self.newton.reuse and int(sol.status) == int(it.Status.NEWTON_FAILED):
             full = dataclasses.replace(self.newton, reuse=False)
-            sol = it.simulate(model, loading, trace.t, self.problem.output_fn, self.scheme, full, pad_to=pad,
+            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full, pad_to=pad,
                               control=None)
             self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)
@@ -147,7 +131,7 @@ class Forward:
             self._cache[key] = self._finish(effects, trace, launched)
         return [self._cache[self._key(e, t)] for e, t in jobs]
 
-    def raw(self, effects: Mapping, trace: TraceData) -> np.ndarray:
+    def raw(self, effects: Mapping, trace: Trace) -> np.ndarray:
         """Model output (before the sensor transform) on the trace's time grid."""
         return self.raw_many([(effects, trace)])[0]
 
@@ -159,18 +143,18 @@ class Forward:
             sensor_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "sensor"}
             if sensor_fx:
                 s = fx.apply_effects(self.pieces0, sensor_fx).sensor
-                y = np.asarray(s(jnp.asarray(trace.t), jnp.asarray(y)))
+                y = np.asarray(s(jnp.asarray(trace.time), jnp.asarray(y)))
             out.append(y)
         return out
 
-    def predict(self, effects: Mapping, trace: TraceData) -> np.ndarray:
+    def predict(self, effects: Mapping, trace: Trace) -> np.ndarray:
         return self.predict_many([(effects, trace)])[0]
 
 
 # ----------------------------------------------------------------------------- noise, breakdown
 
 
-def estimate_noise(traces: Sequence[TraceData]) -> float:
+def estimate_noise(traces: Sequence[Trace]) -> float:
     """Pooled white-noise sigma from 4th differences: Var(Delta^4 e) = 70 sigma^2."""
     num, den = 0.0, 0
     for tr in traces:
@@ -180,23 +164,25 @@ def estimate_noise(traces: Sequence[TraceData]) -> float:
     return math.sqrt(num / (70.0 * max(den, 1)))
 
 
-def breakdown(traces: Sequence[TraceData], preds: Sequence[np.ndarray]) -> dict:
+def breakdown(traces: Sequence[Trace], preds: Sequence[np.ndarray]) -> dict:
     """Residual (model - measured) broken down by trace/condition, cycle, loading/unloading,
     transient/steady state, and features (model - measured, per cycle and mean)."""
     res = {"traces": [], "features": {}}
     feat_acc: dict = {}
     for tr, yp in zip(traces, preds):
-        r = np.asarray(yp) - tr.y
-        ids = cycles.trace_cycle_ids(tr.t, tr.freq)
-        du = np.gradient(tr.command, tr.t)
+        y = tr.y
+        r = np.asarray(yp) - y
+        command = np.asarray(tr.voltage_history(jnp.asarray(tr.time)))
+        ids = cycles.trace_cycle_ids(tr.time, tr.frequency)
+        du = np.gradient(command, tr.time)
         load = du > 0
         entry = {"name": tr.name, "role": tr.role, "conditions": dict(tr.conditions), "rms": _rms(r),
                  "mean_residual": float(np.mean(r)),
                  "per_cycle_rms": [_rms(r[ids == c]) for c in range(int(ids.max()) + 1)],
                  "loading_rms": _rms(r[load]), "unloading_rms": _rms(r[~load]),
                  "transient_rms": _rms(r[ids == 0]), "steady_rms": _rms(r[ids > 0]) if np.any(ids > 0) else None}
-        fm = cycles.trace_cycle_measures(tr.t, tr.y, tr.command, tr.freq)
-        fp = cycles.trace_cycle_measures(tr.t, yp, tr.command, tr.freq)
+        fm = cycles.trace_cycle_measures(tr.time, y, command, tr.frequency)
+        fp = cycles.trace_cycle_measures(tr.time, yp, command, tr.frequency)
         entry["features"] = {k: {"measured": fm[k].tolist(), "model": fp[k].tolist(),
                                  "gap": (fp[k] - fm[k]).tolist()} for k in fm}
         res["traces"].append(entry)
@@ -261,11 +247,11 @@ class CandidateResult:
         return dataclasses.asdict(self)
 
 
-def _residuals(fwd: Forward, effects: Mapping, traces: Sequence[TraceData]) -> np.ndarray:
+def _residuals(fwd: Forward, effects: Mapping, traces: Sequence[Trace]) -> np.ndarray:
     return _residuals_many(fwd, [effects], traces)[0]
 
 
-def _residuals_many(fwd: Forward, effects_list: Sequence[Mapping], traces: Sequence[TraceData]) -> list:
+def _residuals_many(fwd: Forward, effects_list: Sequence[Mapping], traces: Sequence[Trace]) -> list:
     """Residuals (model - measured, concatenated over ``traces``) of each effects dict, the
     simulations of all of them started together."""
     preds = fwd.predict_many([(e, tr) for e in effects_list for tr in traces])
@@ -310,7 +296,7 @@ def _fd_jacobian(resid_many, z, r, h: float = FD_STEP) -> np.ndarray:
     return np.stack([(rj - r) / hj for rj, hj in zip(resid_many(points), steps)], axis=1)
 
 
-def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[TraceData], start: Mapping | None = None,
+def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], start: Mapping | None = None,
                 max_iter: int = 8, fixed: Mapping | None = None, rtol: float = 1e-4, z0=None):
     """Bounded Levenberg-Marquardt (``fitting.least_squares``) over the parameters of the
     effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
@@ -375,7 +361,7 @@ class Screened:
     d_bic: float
 
 
-def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[TraceData], r0: np.ndarray,
+def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0: np.ndarray,
            pairs: bool = True) -> dict:
     """Score-type screening at the baseline (every effect off): one forward-difference column
     per parameter (a simulation for a model effect, none for a sensor effect), then for each
@@ -466,7 +452,7 @@ def _gap(rms, sigma):
     return math.sqrt(max(rms ** 2 - sigma ** 2, 0.0))
 
 
-def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str] | None = None,
+def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | None = None,
              noise: float | None = None, bic_threshold: float = 10.0, z: float = 4.0, max_iter: int = 8,
              start: Mapping | None = None, verbose: bool = False, fit_top: int = 3, pairs: bool = True) -> Diagnosis:
     """Run (a)-(c) of the module docstring. ``candidates``: effect names (default: all).
@@ -481,7 +467,7 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
         raise ValueError("diagnose: no trace with role 'fit'")
     candidates = list(candidates or fx.names())
     sigma = estimate_noise(traces) if noise is None else float(noise)
-    n = int(sum(len(tr.t) for tr in fit))
+    n = int(sum(len(tr) for tr in fit))
 
     if verbose:
         print(f"[diagnose] baseline: simulating {len(traces)} trace(s) (the first call compiles the simulation) ...",
@@ -584,18 +570,10 @@ def diagnose(fwd: Forward, traces: Sequence[TraceData], candidates: Sequence[str
 # ----------------------------------------------------------------------------- experiment files
 
 
-def _history(tr) -> object:
-    """The commanded voltage history of a trace: its loading table, else its voltage column."""
-    if tr.loading is not None and "voltage" not in tr.channels:
-        return loads.from_spec(tr.loading)
-    if "voltage" in tr.channels:
-        return loads.PiecewiseLinear(tr.time, tr.channels["voltage"])
-    raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
-
-
-def forward_from_experiment(exp) -> tuple[Forward, list[TraceData]]:
-    """Forward model and TraceData of a block-scenario Experiment. Response channel: ``stretch``
-    (lateral stretch) or ``displacement`` ((stretch - 1) L, m)."""
+def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
+    """Forward model and traces (the experiment's, with their response channel) of a
+    block-scenario Experiment. Response channel: ``stretch`` (lateral stretch) or
+    ``displacement`` ((stretch - 1) L, m)."""
     from dejax import scenarios as sc
     from dejax.material import Material
 
@@ -613,12 +591,13 @@ def forward_from_experiment(exp) -> tuple[Forward, list[TraceData]]:
         if channel not in (None, ch):
             raise ValueError("all traces must carry the same response channel")
         channel = ch
-        traces.append(TraceData(tr.name, np.asarray(tr.time, dtype=float), np.asarray(tr[ch], dtype=float),
-                                _history(tr), tr.role, dict(tr.conditions), tr.frequency))
-    pad = max(len(t.t) for t in traces) - 1
+        if tr.voltage_history is None:
+            raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
+        traces.append(dataclasses.replace(tr, response=ch))
+    pad = max(len(t) for t in traces) - 1
     prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat,
                     gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)),
-                    voltage=traces[0].base)
+                    voltage=traces[0].voltage_history)
     transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
     fwd = Forward(prob, "lateral_stretch", rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
     return fwd, traces
@@ -638,16 +617,17 @@ def block_forward(material=None, L: float = 1e-3, pad_to: int | None = None) -> 
 
 
 def synthetic_traces(fwd: Forward, conditions, truth: Mapping, noise: float, seed: int = 0,
-                     n_cycles: float = 3.0, samples_per_cycle: int = 40) -> list[TraceData]:
-    """Traces of the block made with the effects ``truth`` ({name: values}) plus white noise.
+                     n_cycles: float = 3.0, samples_per_cycle: int = 40, channel: str = "stretch") -> list[Trace]:
+    """Traces of the block made with the effects ``truth`` ({name: values}) plus white noise,
+    their response ``channel`` (the forward's output), under a sine loading.
     conditions: sequence of (name, role, phi_max V, freq Hz)."""
     rng = np.random.default_rng(seed)
     out = []
     for name, role, phi, f in conditions:
         n = int(round(n_cycles * samples_per_cycle))
         t = np.linspace(0.0, n_cycles / f, n + 1)
-        tr = TraceData(name, t, np.zeros_like(t), loads.Sine(phi, f), role, {"phi_max": phi, "freq": f}, f)
+        tr = Trace(t, {channel: np.zeros_like(t)}, role, {"phi_max": phi, "freq": f}, name=name,
+                   loading={"kind": "sine", "phi_max": phi, "freq": f}, response=channel)
         y = fwd.predict(truth, tr)
-        tr.y = y + noise * rng.standard_normal(y.shape)
-        out.append(tr)
+        out.append(dataclasses.replace(tr, channels={channel: y + noise * rng.standard_normal(y.shape)}))
     return out

@@ -6,9 +6,10 @@
 * ``BlockForward``: the DE block under a voltage history; predicts
   ``lateral_stretch`` (or any block output) at ``t_obs``.
 * ``RolledForward``: the rolled tube (small mesh); predicts x_P (m) at ``t_obs``.
-* ``uniaxial_target(...)``, ``hossain_target(peak, rate, ...)``: Targets for fitting.fit.
+* ``uniaxial_target(...)``, ``hossain_target(peak, rate, ...)``: traces for fitting.fit (a
+  ``fitting.traces.Trace`` with its response, the forward's ``data`` and plot labels).
 * ``from_experiment(exp)``: (forward, params0, free, bounds, targets, holdout, options)
-  from a ``fitting.data.Experiment``.
+  from a ``fitting.data.Experiment``: its traces at the observation times, with ``data``.
 * ``experiment_run(exp, trace)``: the ``Problem`` of ``dejax run experiment.toml``: the
   experiment's scenario, material and geometry under one trace's loading, with its
   ``[solver]`` settings.
@@ -29,7 +30,9 @@ import numpy as np
 from dejax import integrate as it
 from dejax import loads, parameters, scenarios
 
-from .fit import Target, fit
+from .fit import fit
+from .traces import Trace
+from .units import CHANNELS, SI_UNIT
 
 __all__ = ["Interp", "UniaxialForward", "BlockForward", "RolledForward", "uniaxial_target", "hossain_target",
            "from_experiment", "run_experiment", "experiment_run", "RunSetup"]
@@ -48,9 +51,6 @@ class Interp(eqx.Module):
 def _check_ok(sol, pred):
     return jnp.where(sol.status == 0, pred, jnp.nan)
 
-
-CHANNEL_UNITS = {"stretch": "1", "displacement": "m", "stress": "Pa"}
-"""SI units of the response channels a fit compares (after the trace's unit conversion)."""
 
 FIT_STEP_CONTROL = None
 """Forward models of fits take the user's steps without cut-back: a differentiated run
@@ -200,9 +200,14 @@ def uniaxial_steps(stretch) -> int:
     return max(int(np.ceil(travel / STRETCH_PER_STEP)), 50)
 
 
+UNIAXIAL_LABELS = {"stress": "nominal stress (Pa)", "stretch": "stretch"}
+"""Axis labels of a uniaxial fit's plots."""
+
+
 def uniaxial_target(name, time, stretch, stress, n_steps: int, voltage=None, max_points=None, knots=None,
-                    weight=1.0) -> Target:
-    """Target for ``UniaxialForward``: the measured stress at the measured times.
+                    weight=1.0) -> Trace:
+    """Trace for ``UniaxialForward``: the measured stress at the measured times (its
+    response), against the stretch.
 
     The prescribed stretch history interpolates ``knots`` = (times, stretches) if
     given, else the measured (time, stretch) pairs. The simulation runs on ``n_steps``
@@ -218,8 +223,8 @@ def uniaxial_target(name, time, stretch, stress, n_steps: int, voltage=None, max
     if voltage is not None:
         data["volt_t"] = jnp.asarray(time[keep] if knots is None else time)
         data["volt_v"] = jnp.asarray(np.asarray(voltage, float)[keep] if knots is None else voltage)
-    return Target(name, stress[idx], data, t=time[idx], x=stretch[idx], weight=weight, ylabel="nominal stress (Pa)",
-                  xlabel="stretch", unit="Pa")
+    return Trace(time[idx], {"stress": stress[idx], "stretch": stretch[idx]}, name=name, weight=weight,
+                 response="stress", against="stretch", data=data, labels=UNIAXIAL_LABELS)
 
 
 def triangle_knots(time, stretch):
@@ -228,8 +233,8 @@ def triangle_knots(time, stretch):
     return np.array([time[0], time[i], time[-1]]), np.array([stretch[0], stretch[i], stretch[-1]])
 
 
-def hossain_target(peak: float, rate: float, n_steps: int, max_points=None) -> Target:
-    """Target of one Hossain et al. (2012) VHB 4910 curve, ideal triangle stretch history."""
+def hossain_target(peak: float, rate: float, n_steps: int, max_points=None) -> Trace:
+    """Trace of one Hossain et al. (2012) VHB 4910 curve, ideal triangle stretch history."""
     from .datasets import load_hossain2012
 
     c = load_hossain2012(peak, rate)
@@ -256,45 +261,56 @@ def from_experiment(exp, n_steps: int | None = None, max_points: int | None = No
         raise ValueError("every trace needs a time column for dejax fit")
     if exp.scenario not in FIT_TARGETS:
         raise ValueError(f"dejax fit: scenario {exp.scenario!r} is not supported (uniaxial, block, rolled)")
-    fwd, pairs = FIT_TARGETS[exp.scenario](exp, n_steps, max_points)
-    targets = [tg for tr, tg in pairs if tr.role == "fit"]
-    holdout = [tg for tr, tg in pairs if tr.role != "fit"]
+    fwd, traces = FIT_TARGETS[exp.scenario](exp, n_steps, max_points)
+    targets = [tg for tg in traces if tg.role == "fit"]
+    holdout = [tg for tg in traces if tg.role != "fit"]
     if not targets:
         raise ValueError("the experiment has no trace with role = 'fit'")
     return fwd, params0, free, bounds, targets, holdout, opts
 
 
+def _measured(tg: Trace, tr: Trace) -> Trace:
+    """The fit trace ``tg`` with the role, conditions, source and loading of the experiment's
+    trace ``tr`` it was built from."""
+    return dataclasses.replace(tg, role=tr.role, conditions=tr.conditions, source=tr.source, loading=tr.loading)
+
+
 def _uniaxial_targets(exp, n_steps, max_points):
-    """UniaxialForward and (trace, Target) pairs of a uniaxial experiment: the stress at the
+    """UniaxialForward and the fit traces of a uniaxial experiment: the stress at the
     measured times, one number of steps for every trace (one compiled simulation)."""
     fwd = UniaxialForward(exp.n_units, voltage=any(tr.voltage() is not None for tr in exp.traces),
                           lz=float(exp.geometry.get("h", 1e-3)))
-    pairs = []
+    traces = []
     for tr in exp.traces:
         lam = tr["stretch"]
         N = int(n_steps) if n_steps is not None else uniaxial_steps(lam)
         v = tr.voltage()
         if fwd.voltage and v is None:
             v = np.zeros_like(tr.time)
-        pairs.append((tr, uniaxial_target(tr.name, tr.time, lam, tr["stress"], N, voltage=v if fwd.voltage else None,
-                                          max_points=max_points, weight=tr.weight)))
-    N = max(int(tg.data["times"].shape[0]) - 1 for _, tg in pairs)
-    for _, tg in pairs:
+        traces.append(_measured(uniaxial_target(tr.name, tr.time, lam, tr["stress"], N,
+                                                voltage=v if fwd.voltage else None, max_points=max_points,
+                                                weight=tr.weight), tr))
+    N = max(int(tg.data["times"].shape[0]) - 1 for tg in traces)
+
+    def regrid(tg):
         nodes = turning_points(tg.data["knots_t"], tg.data["knots_lam"])
-        tg.data["times"] = jnp.asarray(step_grid(float(tg.data["times"][-1]), N, nodes))
-    return fwd, pairs
+        return dataclasses.replace(tg, data={**tg.data, "times": jnp.asarray(step_grid(float(tg.data["times"][-1]), N,
+                                                                                          nodes))})
+
+    return fwd, [regrid(tg) for tg in traces]
 
 
 def _driven_targets(fwd, channel):
-    """(trace, Target) pairs builder of a voltage-driven scenario: ``channel`` of each trace
-    at its samples, the simulation on one number of steps for every trace (from [solver] dt,
-    else 200)."""
+    """Fit-trace builder of a voltage-driven scenario: ``channel`` of each trace at its
+    samples, against the voltage, the simulation on one number of steps for every trace
+    (from [solver] dt, else 200)."""
 
     def build(exp, n_steps, max_points):
         dt = exp.solver.get("dt")
         Ts = [float(tr.time[-1]) for tr in exp.traces]
         N = int(n_steps) if n_steps is not None else max(int(np.ceil(T / dt)) if dt else 200 for T in Ts)
-        pairs = []
+        labels = {channel: f"{channel} ({SI_UNIT[CHANNELS[channel]]})", "voltage": "voltage (V)"}
+        traces = []
         for tr in exp.traces:
             y = tr[channel]
             v = tr.voltage()
@@ -303,10 +319,10 @@ def _driven_targets(fwd, channel):
             idx = _subsample(y.size, max_points)
             data = dict(times=jnp.linspace(0.0, float(tr.time[-1]), N + 1), volt_t=jnp.asarray(tr.time),
                         volt_v=jnp.asarray(v), t_obs=jnp.asarray(tr.time[idx]))
-            pairs.append((tr, Target(tr.name, y[idx], data, t=tr.time[idx], x=np.asarray(v)[idx], weight=tr.weight,
-                                     ylabel=f"{channel} ({CHANNEL_UNITS[channel].replace('1', '-')})",
-                                     xlabel="voltage (V)", unit=CHANNEL_UNITS[channel])))
-        return fwd(exp), pairs
+            tg = Trace(tr.time[idx], {channel: np.asarray(y[idx], dtype=float), "voltage": np.asarray(v)[idx]},
+                       name=tr.name, weight=tr.weight, response=channel, against="voltage", data=data, labels=labels)
+            traces.append(_measured(tg, tr))
+        return fwd(exp), traces
 
     return build
 
@@ -327,8 +343,9 @@ FIT_TARGETS = {
     "block": _driven_targets(_block_forward, "stretch"),
     "rolled": _driven_targets(_rolled_forward, "displacement"),
 }
-"""Scenario name -> ``(exp, n_steps, max_points) -> (forward, [(trace, Target)])``: the
-scenarios ``dejax fit`` supports."""
+"""Scenario name -> ``(exp, n_steps, max_points) -> (forward, [Trace])`` (the experiment's
+traces as its forward compares them: response, ``data``, role): the scenarios ``dejax fit``
+supports."""
 
 
 def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=None, max_points=None,
@@ -390,14 +407,6 @@ def _run_trace(exp, name):
     return tr
 
 
-def trace_voltage(tr):
-    """The voltage history (t -> V) of a trace: its measured column, linear between the
-    samples, else its ``loading`` table, else None."""
-    if "voltage" in tr.channels:
-        return loads.PiecewiseLinear(tr.time, tr["voltage"])
-    return None if tr.loading is None else loads.from_spec(tr.loading)
-
-
 def _trace_geometry(exp, tr) -> dict:
     """``[geometry]`` with the trace's ``conditions`` that name geometry keys applied."""
     from .schema import GEOMETRY_KEYS
@@ -454,7 +463,7 @@ def experiment_run(exp, trace: str | None = None, dt=None, dt_min=None, rho_inf=
     steps = uniaxial_steps(tr["stretch"]) if exp.scenario == "uniaxial" else RUN_STEPS
     common = dict(gauss_order=int(gauss_order or s.get("gauss_order", 3)),
                   damping=float(damping if damping is not None else s.get("damping", 0.0)), volumetric=volumetric)
-    volt = trace_voltage(tr)
+    volt = tr.voltage_history
     problem = _scenario_problem(exp, tr, _trace_geometry(exp, tr), volt, common)
     problem = dataclasses.replace(problem, params=_run_params(problem, exp, tr, volt))
     settings = dict(dt=float(dt or s.get("dt", t_end / steps)), dt_min=float(dt_min or s.get("dt_min", 1e-6)),

@@ -6,19 +6,20 @@ API
 
 * ``forward(params, data) -> prediction``: ``params`` is a dict name -> jax
   scalar (every parameter of ``params0``, the free ones traced), ``data`` a
-  pytree of arrays describing one trace (its loading, time grid, ...);
-  returns an array shaped like the target's ``y``. It must be jax-traceable
+  pytree of arrays describing one trace (its loading, time grid, ...: the
+  trace's ``data``); returns an array shaped like the trace's ``y``. It must be jax-traceable
   (it is jitted, differentiated by ``jax.grad`` and ``jax.jacfwd``). Keep it a
   module-level function or a hashable object: compiled code is cached per
   ``(forward, free, fixed names)`` and reused across targets whose ``data``
   have equal shapes (give every trace the same number of steps).
-* ``targets`` / ``holdout``: sequences of ``Target(name, y, data, t=None,
-  x=None, weight=1, scale=None)``.
+* ``targets`` / ``holdout``: sequences of ``fitting.traces.Trace`` with a ``response``
+  channel (``y``) and ``data`` (``fitting.experiment`` builds them from experiment files;
+  ``Target(name, y, data, t=None, x=None, weight=1, scale=None)`` from samples).
 * free parameters are mapped to an unbounded variable ``theta`` by
   ``p = exp(log lo + (log hi - log lo) sigmoid(theta))`` (box bounds in log
   space); missing bounds default to ``[p0 / 100, p0 * 100]``.
 * loss = sum over targets of ``weight * mean(((pred - y) / scale)^2)``,
-  ``scale`` = the trace amplitude (peak-to-peak of y, else max |y|).
+  ``scale`` = the trace's ``norm`` (its ``scale``, else the amplitude of y).
 * optimizer (``method``): "lm" (default), Levenberg-Marquardt in log p within the
   bounds (``fitting.least_squares``, at most ``max_evals`` evaluations), each evaluation
   one forward-mode program per target giving its residuals and their Jacobian; or
@@ -59,6 +60,7 @@ from dejax import parameters
 
 from .schema import OPTIMIZERS
 from .toml_writer import write_atomic
+from .traces import Trace, from_samples
 
 __all__ = ["Target", "FitResult", "fit", "apply_params", "LogBox"]
 
@@ -93,34 +95,9 @@ class LogBox:
 
 # ----------------------------------------------------------------------------- targets
 
-
-@dataclasses.dataclass(eq=False)
-class Target:
-    """One trace to fit or predict.
-
-    name: label; y: (n,) measured values; data: pytree handed to ``forward``;
-    t: (n,) abscissa for plots (time); x: (n,) optional second variable for loop
-    plots (stretch, voltage); weight: loss weight; scale: normalization
-    (default: the trace amplitude); ylabel/xlabel: plot labels; unit: unit of y (SI, "1" =
-    dimensionless; shown with the RMS).
-    """
-
-    name: str
-    y: np.ndarray
-    data: Any
-    t: np.ndarray | None = None
-    x: np.ndarray | None = None
-    weight: float = 1.0
-    scale: float | None = None
-    ylabel: str = "y"
-    xlabel: str = "x"
-    unit: str = ""
-
-    def __post_init__(self):
-        self.y = np.asarray(self.y, dtype=float)
-        if self.scale is None:
-            amp = float(np.ptp(self.y))
-            self.scale = amp if amp > 0 else float(np.max(np.abs(self.y))) or 1.0
+Target = from_samples
+"""A fit target known by its samples alone: ``Target(name, y, data, t=None, x=None, weight=1,
+scale=None, ylabel="y", xlabel="x", unit="")`` -> ``fitting.traces.Trace``."""
 
 
 # ----------------------------------------------------------------------------- compiled pieces
@@ -128,7 +105,7 @@ class Target:
 _CACHE: dict = {}
 
 
-def explain_nonfinite(forward, params: Mapping[str, float], target: Target) -> str:
+def explain_nonfinite(forward, params: Mapping[str, float], target: Trace) -> str:
     """Why ``forward`` predicts ``target`` as non-finite at ``params``: when the forward can
     simulate (``forward.simulate(params, data)`` -> dejax Solution), the time (s) and cause
     of the failed simulation; otherwise only the trace."""
@@ -328,16 +305,16 @@ class FitResult:
         for tg in list(self.targets) + list(self.holdout):
             role = "fit" if any(tg is t for t in self.targets) else "holdout"
             pred = self.predictions[tg.name]
-            tt = np.arange(tg.y.size) if tg.t is None else np.asarray(tg.t)
+            tt = np.arange(tg.y.size) if tg.time is None else np.asarray(tg.time)
             fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True, gridspec_kw=dict(height_ratios=[3, 1]))
             ax[0].plot(tt, tg.y, ".", ms=3, label="data")
             ax[0].plot(tt, pred, "-", label="model")
-            ax[0].set_ylabel(tg.ylabel)
+            ax[0].set_ylabel(tg.label(tg.response))
             ax[0].set_title(f"{tg.name} ({role}) RMS/amp = {100 * self.rms[tg.name]['rel_rms']:.2f} %")
             ax[0].legend()
             ax[1].plot(tt, pred - tg.y, "-")
             ax[1].set_ylabel("residual")
-            ax[1].set_xlabel("time (s)" if tg.t is not None else "sample")
+            ax[1].set_xlabel("time (s)" if tg.time is not None else "sample")
             fig.tight_layout()
             p = out / f"trace_{_safe(tg.name)}.png"
             fig.savefig(p, dpi=90)
@@ -347,8 +324,8 @@ class FitResult:
                 fig, ax = plt.subplots(figsize=(5, 4))
                 ax.plot(tg.x, tg.y, ".", ms=3, label="data")
                 ax.plot(tg.x, pred, "-", label="model")
-                ax.set_xlabel(tg.xlabel)
-                ax.set_ylabel(tg.ylabel)
+                ax.set_xlabel(tg.label(tg.against))
+                ax.set_ylabel(tg.label(tg.response))
                 ax.set_title(f"{tg.name} ({role})")
                 ax.legend()
                 fig.tight_layout()
@@ -386,8 +363,8 @@ def fit(
     params0: Mapping[str, float],
     free: Sequence[str],
     bounds: Mapping[str, Sequence[float]] | None,
-    targets: Sequence[Target],
-    holdout: Sequence[Target] = (),
+    targets: Sequence[Trace],
+    holdout: Sequence[Trace] = (),
     adam_steps: int = 30,
     adam_lr: float = 0.1,
     lbfgs_steps: int = 30,
@@ -429,7 +406,7 @@ def fit(
     log_lo, log_span = np.log(lo), np.log(hi) - np.log(lo)
     targets = list(targets)
     holdout = list(holdout)
-    coef = [math.sqrt(t.weight / t.y.size) / t.scale for t in targets]
+    coef = [math.sqrt(t.weight / t.y.size) / t.norm for t in targets]
     padded = _common_shapes(targets + holdout)  # name -> (data, y, mask): one compilation for all
     lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
 
@@ -581,7 +558,7 @@ def _result(free, params0, p0, lo, hi, p_opt, r, J, loss, loss0, history, target
             pr = known[t.name] if t.name in known else predict(t, logp)
             preds[t.name] = pr
             e = float(np.sqrt(np.mean((pr - t.y) ** 2)))
-            rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.scale, n=int(t.y.size), unit=t.unit)
+            rms[t.name] = dict(role=role, rms=e, rel_rms=e / t.norm, n=int(t.y.size), unit=t.unit)
     res = FitResult(params, list(free), {k_: float(v) for k_, v in zip(free, p0)},
                     {k_: (float(a), float(b)) for k_, a, b in zip(free, lo, hi)}, stderr, rel, corr, cov,
                     float(loss), float(loss0), history, rms, preds, list(targets), list(holdout), n_evals,

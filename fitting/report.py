@@ -10,12 +10,13 @@ from typing import Sequence
 
 import numpy as np
 
-from .diagnose import Diagnosis, TraceData
+from .diagnose import Diagnosis
+from .traces import Trace
 
 __all__ = ["write_report"]
 
 
-def _figures(diag: Diagnosis, traces: Sequence[TraceData], out: Path) -> list[str]:
+def _figures(diag: Diagnosis, traces: Sequence[Trace], out: Path) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,14 +26,14 @@ def _figures(diag: Diagnosis, traces: Sequence[TraceData], out: Path) -> list[st
     nt = len(traces)
     fig, ax = plt.subplots(nt, 2, figsize=(11, 2.6 * nt), squeeze=False)
     for i, tr in enumerate(traces):
-        ax[i, 0].plot(tr.t, tr.y, ".", ms=2, color="k", label="measured")
-        ax[i, 0].plot(tr.t, diag.preds["baseline"][tr.name], label="baseline")
+        ax[i, 0].plot(tr.time, tr.y, ".", ms=2, color="k", label="measured")
+        ax[i, 0].plot(tr.time, diag.preds["baseline"][tr.name], label="baseline")
         if diag.best:
-            ax[i, 0].plot(tr.t, diag.preds[diag.best][tr.name], "--", label=f"+ {diag.best}")
+            ax[i, 0].plot(tr.time, diag.preds[diag.best][tr.name], "--", label=f"+ {diag.best}")
         ax[i, 0].set_title(f"{tr.name} ({tr.role}) {tr.conditions}", fontsize=8)
-        ax[i, 1].plot(tr.t, diag.preds["baseline"][tr.name] - tr.y, label="baseline residual")
+        ax[i, 1].plot(tr.time, diag.preds["baseline"][tr.name] - tr.y, label="baseline residual")
         if diag.best:
-            ax[i, 1].plot(tr.t, diag.preds[diag.best][tr.name] - tr.y, label=f"+ {diag.best}")
+            ax[i, 1].plot(tr.time, diag.preds[diag.best][tr.name] - tr.y, label=f"+ {diag.best}")
         ax[i, 1].axhspan(-diag.noise, diag.noise, color="0.85", label="+- noise")
         ax[i, 0].legend(fontsize=7)
         ax[i, 1].legend(fontsize=7)
@@ -76,7 +77,7 @@ def _figures(diag: Diagnosis, traces: Sequence[TraceData], out: Path) -> list[st
     return files
 
 
-def write_report(diag: Diagnosis, traces: Sequence[TraceData], out, title: str = "Sim-to-real gap diagnosis") -> dict:
+def write_report(diag: Diagnosis, traces: Sequence[Trace], out, title: str = "Sim-to-real gap diagnosis") -> dict:
     """Write report.md, report.json and PNG figures into ``out``; return {kind: path}."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
 """Choosing between fitted models: least squares in the data's unit, information criteria,
 multi-start fits and whether they reach the same optimum, per-curve errors.
 
-* ``per_point_least_squares(targets, noise)``: sets every target's ``scale`` to ``noise``
-  and its ``weight`` to its number of points, so that ``fitting.fit.fit`` minimizes
+* ``per_point_least_squares(targets, noise)``: the targets with ``scale`` = ``noise``
+  and ``weight`` = their number of points, so that ``fitting.fit.fit`` minimizes
   ``sum over all points of ((pred - y) / noise)^2``: ordinary least squares with one
   noise level for every point (the digitizing noise of a set of curves), which is what
   the Gaussian information criteria below assume. (fit's default, the mean square of
@@ -39,15 +39,12 @@ __all__ = ["per_point_least_squares", "information_criteria", "fit_criteria", "r
            "StartOutcome", "multistart", "agreement", "curve_errors", "text_table"]
 
 
-def per_point_least_squares(targets, noise: float):
-    """Give every target ``scale = noise`` and ``weight = number of points`` (in place; the
-    targets are returned): fit's loss becomes sum_points ((pred - y) / noise)^2."""
+def per_point_least_squares(targets, noise: float) -> list:
+    """The targets (``fitting.traces.Trace``) with ``scale = noise`` and ``weight = number of
+    points``: fit's loss becomes sum_points ((pred - y) / noise)^2."""
     if not noise > 0:
         raise ValueError(f"per_point_least_squares: noise = {noise} must be > 0")
-    for t in targets:
-        t.scale = float(noise)
-        t.weight = float(np.asarray(t.y).size)
-    return targets
+    return [dataclasses.replace(t, scale=float(noise), weight=float(np.asarray(t.y).size)) for t in targets]
 
 
 def information_criteria(rss: float, n: int, k: int) -> dict:

@@ -1,4 +1,11 @@
-"""Measured traces: the ``Trace`` record (SI units) and the CSV reader ``load_trace_csv``."""
+"""Measured traces: the ``Trace`` record (SI units), the CSV reader ``load_trace_csv`` and
+``from_samples`` (a trace known by its samples alone).
+
+One record serves every consumer: an experiment file's traces (``fitting.data``), the
+traces a fit compares with its forward model (``fitting.fit``, built by
+``fitting.experiment``: the response at the observation times and the forward's
+``data``) and the traces of a gap diagnosis (``fitting.diagnose``: the response channel
+and the commanded voltage history)."""
 from __future__ import annotations
 
 import csv
@@ -13,12 +20,12 @@ import numpy as np
 from .schema import DataError, check_loading, fmt_list, loading_voltage, suggest
 from .units import CHANNELS, SI_UNIT, to_si
 
-__all__ = ["Trace", "load_trace_csv"]
+__all__ = ["Trace", "load_trace_csv", "from_samples"]
 
 
 @dataclass(frozen=True, eq=False)
 class Trace:
-    """One measured (or simulated) record, in SI units.
+    """One measured (or simulated) trace, in SI units.
 
     Attributes:
       time: (n,) time in s, strictly increasing, or None (material tests
@@ -32,7 +39,14 @@ class Trace:
       name: unique name within the experiment (default the file's stem).
       loading: nominal voltage history (see ``LOADING_KINDS``) or None.
       weight: relative weight in a fit.
-      columns, units: the CSV headers and units the channels came from.
+      columns, units: the CSV headers and units the channels came from (for a channel
+        that is not one of ``CHANNELS``: the unit of its values).
+      response: the channel a model is compared with (``y``), or None.
+      against: the channel ``y`` is plotted against in loop plots (``x``), or None.
+      data: the pytree a fit's forward model simulates the trace from (time grid,
+        histories, observation times), or None.
+      scale: a fit's normalization of the residual; None: the amplitude of ``y`` (see ``norm``).
+      labels: channel -> axis label of plots (default: the channel's name).
 
     ``trace["displacement"]`` returns a channel (``trace["time"]`` the time).
     """
@@ -47,6 +61,11 @@ class Trace:
     weight: float = 1.0
     columns: Mapping[str, str] = field(default_factory=dict)
     units: Mapping[str, str] = field(default_factory=dict)
+    response: str | None = None
+    against: str | None = None
+    data: Any = None
+    scale: float | None = None
+    labels: Mapping[str, str] = field(default_factory=dict)
 
     def __getitem__(self, channel: str) -> np.ndarray:
         if channel == "time" and self.time is not None:
@@ -66,6 +85,45 @@ class Trace:
         return int(next(iter(self.channels.values())).shape[0]) if self.channels else 0
 
     @property
+    def t(self) -> np.ndarray | None:
+        """The time (s), as fits and diagnoses name it."""
+        return self.time
+
+    @property
+    def y(self) -> np.ndarray:
+        """The response channel (what a model is compared with), as floats."""
+        if self.response is None:
+            raise ValueError(f"trace '{self.name}': no response channel chosen (channels: {fmt_list(self.channels)})")
+        return np.asarray(self[self.response], dtype=float)
+
+    @property
+    def x(self) -> np.ndarray | None:
+        """The channel ``y`` is plotted against in loops, or None."""
+        return None if self.against is None else self.channels[self.against]
+
+    @property
+    def norm(self) -> float:
+        """A fit's normalization of the residual: ``scale`` if given, else the amplitude of
+        ``y`` (peak to peak, else max |y|, else 1)."""
+        if self.scale is not None:
+            return float(self.scale)
+        amp = float(np.ptp(self.y))
+        return amp if amp > 0 else float(np.max(np.abs(self.y))) or 1.0
+
+    @property
+    def unit(self) -> str:
+        """The unit of ``y``: the SI unit of a known channel ("1" if dimensionless), else the
+        unit given in ``units`` ("" if none)."""
+        if self.response in CHANNELS:
+            si = SI_UNIT[CHANNELS[self.response]]
+            return "1" if si == "-" else si
+        return self.units.get(self.response, "")
+
+    def label(self, channel: str) -> str:
+        """The axis label of ``channel`` in plots."""
+        return self.labels.get(channel, channel)
+
+    @property
     def frequency(self) -> float | None:
         """Excitation frequency (Hz) from ``loading`` or ``conditions``, if any."""
         if self.loading is not None and "freq" in self.loading:
@@ -80,6 +138,16 @@ class Trace:
             return None
         d = np.diff(self.time)
         return float(np.mean(d)) if np.ptp(d) <= 1e-3 * np.mean(d) else None
+
+    @property
+    def voltage_history(self):
+        """The commanded voltage history (t -> V, a ``dejax.loads`` history): the measured
+        ``voltage`` channel, linear between the samples, else the ``loading`` table, else None."""
+        from dejax import loads
+
+        if "voltage" in self.channels:
+            return loads.PiecewiseLinear(self.time, self.channels["voltage"])
+        return None if self.loading is None else loads.from_spec(self.loading)
 
     def voltage(self, t=None):
         """Voltage (V) at ``t`` (default: the trace's time): the measured
@@ -98,6 +166,20 @@ class Trace:
                 raise ValueError(f"trace '{self.name}': no time column to evaluate the loading on")
             return loading_voltage(self.loading, tt)
         return None
+
+
+def from_samples(name: str, y, data=None, t=None, x=None, weight: float = 1.0, scale: float | None = None,
+                 ylabel: str = "y", xlabel: str = "x", unit: str = "") -> Trace:
+    """A trace known by its samples alone (fit's ``Target``): ``y`` (n,) the values a model
+    fed ``data`` predicts, at times ``t`` (s, or None), plotted against ``x`` in loops;
+    ``weight``, ``scale`` as in ``Trace``; ``ylabel``, ``xlabel`` the axis labels; ``unit``
+    the unit of ``y`` (SI, "1" = dimensionless)."""
+    channels = {"y": np.asarray(y, dtype=float)}
+    if x is not None:
+        channels["x"] = x
+    return Trace(time=t, channels=channels, name=name, weight=weight, units={"y": unit} if unit else {},
+                 response="y", against=None if x is None else "x", data=data, scale=scale,
+                 labels={"y": ylabel, "x": xlabel})
 
 
 def _read_lines(path: Path) -> list[str]:

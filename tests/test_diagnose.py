@@ -29,7 +29,7 @@ class AnalyticForward(dg.Forward):
     def _launch(self, effects, trace):
         tau = effects.get("voltage_lag", {}).get("tau", 0.0)
         rel = effects.get("electrode_stiffness", {}).get("rel", 0.0)
-        u = np.asarray(fx.lowpass(trace.base, tau, jnp.asarray(trace.t)))
+        u = np.asarray(fx.lowpass(trace.voltage_history, tau, jnp.asarray(trace.time)))
         self.n_sims += 1
         return 1.0 + self.k * u ** 2 / (1.0 + rel)
 

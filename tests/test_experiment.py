@@ -25,6 +25,8 @@ def test_uniaxial_example():
     assert len(n) == 1  # one number of steps for every trace
     for t in targets + holdout:
         assert t.y.shape == (20,) and t.unit == "Pa" and np.all(np.diff(t.data["knots_t"]) > 0)
+    assert (targets[0].label(targets[0].response), targets[0].label(targets[0].against)) == (
+        "nominal stress (Pa)", "stretch")
     assert opts["max_iter"] == 30
     for t in targets + holdout:  # the loading's turning point (peak stretch) is a grid node
         kt, kl = np.asarray(t.data["knots_t"]), np.asarray(t.data["knots_lam"])
@@ -56,6 +58,11 @@ def test_block_and_rolled_examples_get_their_forwards():
     fwd, *_, targets, holdout, _ = E.from_experiment(exp, n_steps=7)
     assert isinstance(fwd, E.BlockForward) and fwd.output == "lateral_stretch"
     assert all(t.data["times"].shape == (8,) for t in targets + holdout)
+    for t, tr in zip(targets + holdout, exp.traces):  # each the experiment's trace at its samples, against V
+        assert (t.name, t.role, t.conditions, t.source) == (tr.name, tr.role, tr.conditions, tr.source)
+        np.testing.assert_array_equal(t.y, tr["stretch"])
+        np.testing.assert_array_equal(t.x, tr.voltage())
+        assert t.unit == "1" and (t.label(t.response), t.label(t.against)) == ("stretch (-)", "voltage (V)")
     tube = load_experiment(EXAMPLES / "tube_example.toml")
     fwd, *_ = E.from_experiment(tube, n_steps=5)
     assert isinstance(fwd, E.RolledForward) and fwd.output == "x_P" and fwd.h == 2e-3

@@ -184,8 +184,8 @@ def test_forward_and_reverse_mode_fits_agree_with_least_squares(monkeypatch):
     for name, n in (("short", 7), ("long", 12)):
         x = np.linspace(0.1, 1.0, n)
         targets.append(F.Target(name, 3.0 * x + 2.0 * x ** 2 + 0.01 * rng.standard_normal(n), {"x": jnp.asarray(x)}))
-    X = np.concatenate([np.stack([t.data["x"], t.data["x"] ** 2], 1) * np.sqrt(1 / t.y.size) / t.scale for t in targets])
-    Y = np.concatenate([t.y * np.sqrt(1 / t.y.size) / t.scale for t in targets])
+    X = np.concatenate([np.stack([t.data["x"], t.data["x"] ** 2], 1) * np.sqrt(1 / t.y.size) / t.norm for t in targets])
+    Y = np.concatenate([t.y * np.sqrt(1 / t.y.size) / t.norm for t in targets])
     ref, rss = np.linalg.lstsq(X, Y, rcond=None)[:2]
     cov = float(rss[0]) / (Y.size - 2) * np.linalg.inv(X.T @ X)
     se_ref = np.sqrt(np.diag(cov))  # of (a, b); the fit reports them from log p: the same to first order

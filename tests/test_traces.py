@@ -1,10 +1,13 @@
-"""CSV traces (fitting.traces): the reader's units, and errors that name the file, the row
-and the column."""
+"""CSV traces (fitting.traces): the reader's units, errors that name the file, the row
+and the column, and the record's views (response, its unit and scale, the voltage history)."""
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 
 from fitting.schema import DataError
-from fitting.traces import load_trace_csv
+from fitting.traces import Trace, from_samples, load_trace_csv
 from helpers import CSV, raises  # noqa: E402  (tests/helpers.py)
 
 
@@ -86,3 +89,43 @@ def test_semicolon_csv_rejected(tmp_path):
     p = tmp_path / "s.csv"
     p.write_text("time;displacement\n0;0\n")
     raises(["s.csv", "row 1", "semicolon"], load_trace_csv, p)
+
+
+def test_response_views_of_a_csv_trace(tmp_path):
+    """The experiment's trace with its response chosen: y, x, unit and norm in SI; the
+    voltage history is the measured column, linear between the samples."""
+    p = tmp_path / "run.csv"
+    p.write_text(CSV)
+    tr = load_trace_csv(p, {"time": "t_ms", "displacement": "disp_mm", "voltage": "U_kV"},
+                        {"time": "ms", "displacement": "mm", "voltage": "kV"}, conditions={"freq": 5.0})
+    with pytest.raises(ValueError, match="run': no response channel chosen"):
+        tr.y
+    tg = dataclasses.replace(tr, response="displacement", against="voltage")
+    np.testing.assert_allclose(tg.y, [0.0, 0.5e-3, 1e-3, 1.5e-3], rtol=1e-15)
+    np.testing.assert_allclose(tg.x, [0.0, 1.5e3, 3e3, 4.5e3], rtol=1e-15)
+    np.testing.assert_allclose(tg.t, [0.0, 1e-3, 2e-3, 3e-3], rtol=1e-15)
+    assert tg.unit == "m" and tg.norm == pytest.approx(1.5e-3, rel=1e-15) and tg.frequency == 5.0
+    assert tg.label("displacement") == "displacement"
+    assert dataclasses.replace(tg, response="voltage").unit == "V"
+    np.testing.assert_allclose(tg.voltage_history(np.array([0.5e-3, 2.5e-3])), [750.0, 3750.0], rtol=1e-12)
+
+
+def test_voltage_history_of_a_loading_table():
+    """Without a voltage column the loading table: phi_max / 2 (1 + sin(2 pi f t + 3 pi / 2))."""
+    t = np.linspace(0.0, 0.5, 5)
+    tr = Trace(t, {"stretch": 1.0 + t}, loading={"kind": "sine", "phi_max": 10e3, "freq": 2.0}, response="stretch")
+    np.testing.assert_allclose(tr.voltage_history(np.array([0.125, 0.25])), [5e3, 10e3], rtol=1e-12)
+    assert tr.frequency == 2.0 and tr.unit == "1"
+    assert Trace(t, {"stretch": t}).voltage_history is None
+
+
+def test_trace_from_samples():
+    tg = from_samples("a", [1, 3, 2], {"k": 1}, x=[0.0, 1.0, 2.0], ylabel="stress (Pa)", xlabel="stretch", unit="Pa")
+    assert tg.name == "a" and tg.y.dtype == float and list(tg.y) == [1.0, 3.0, 2.0] and tg.data == {"k": 1}
+    assert tg.norm == 2.0 and tg.unit == "Pa" and tg.t is None and list(tg.x) == [0.0, 1.0, 2.0]
+    assert tg.label(tg.response) == "stress (Pa)" and tg.label(tg.against) == "stretch"
+    assert from_samples("b", [-2.0, -2.0]).norm == 2.0  # no amplitude: max |y|
+    assert from_samples("c", [0.0, 0.0]).norm == 1.0
+    c = from_samples("d", [1.0, 5.0], scale=0.5)
+    assert c.norm == 0.5 and c.unit == "" and c.x is None and c.label(c.response) == "y"
+    assert math.isclose(dataclasses.replace(c, scale=None).norm, 4.0)

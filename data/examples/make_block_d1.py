@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dejax import loads
 from fitting import diagnose as dg
+from fitting.traces import Trace
 
 HERE = Path(__file__).resolve().parent
 TRUTH = {"hysteresis": {"mu": 2e4, "tau": 0.02}}  # Pa, s
@@ -32,9 +32,10 @@ def main():
     rng = np.random.default_rng(1)
     for name, phi, f, T in CONDITIONS:
         t = np.linspace(0.0, T, int(round(T / DT)) + 1)
-        tr = dg.TraceData(name, t, np.zeros_like(t), loads.Sine(phi, f), "fit", {}, f)
+        tr = Trace(t, {"stretch": np.zeros_like(t)}, name=name, loading={"kind": "sine", "phi_max": phi, "freq": f},
+                   response="stretch")
         y = fwd.predict(TRUTH, tr) + SIGMA * rng.standard_normal(t.size)
-        volt = np.asarray(tr.base(t))
+        volt = np.asarray(tr.voltage())
         with open(HERE / f"{name}.csv", "w") as fh:
             fh.write("# SIMULATED block experiment (make_block_d1.py): dejax block, paper material, an extra fast "
                      "viscous unit (mu 20 kPa, tau 20 ms), noise 1e-4; not a measurement\n")

@@ -27,7 +27,7 @@ def main():
     fwd = dg.block_forward(pad_to=80)
     traces = dg.synthetic_traces(fwd, CONDITIONS, TRUTH, SIGMA, seed=0, n_cycles=2, samples_per_cycle=40)
     for tr in traces:
-        volt = np.asarray(tr.base(tr.t))
+        volt = np.asarray(tr.voltage())
         with open(HERE / f"{tr.name}.csv", "w") as fh:
             fh.write("# SIMULATED block experiment (make_block_example.py): dejax block, paper material, "
                      "voltage lagging the command by tau = 20 ms, noise 1e-4; not a measurement\n")
