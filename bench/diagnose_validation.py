@@ -52,6 +52,7 @@ def cases(size: str):
 def run_case(args):
     label, truth, seed = args
     from fitting import diagnose as dg
+    from fitting.gap import gap
 
     fwd = dg.block_forward(pad_to=120)
     traces = dg.synthetic_traces(fwd, CONDS, truth, NOISE, seed=seed, n_cycles=3, samples_per_cycle=40)
@@ -64,8 +65,8 @@ def run_case(args):
         # holdout gap shrinkage with the best-ranked true effect
         tn = min(truth, key=lambda n: rank_true[n])
         c = next(c for c in d.ranking if c["name"] == tn)
-        g0 = dg._gap(d.baseline["rms_holdout"], d.noise)
-        g1 = dg._gap(c["rms_holdout"], d.noise)
+        g0 = gap(d.baseline["rms_holdout"], d.noise)
+        g1 = gap(c["rms_holdout"], d.noise)
         shrink = 1.0 - g1 / g0 if g0 > 0 else None
     return dict(label=label, truth=truth, top=top, significant_top=d.ranking[0]["significant"], rank_true=rank_true,
                 verdict=d.verdict, noise=d.noise, chi2=d.chi2_ratio, base_rms_hold=d.baseline["rms_holdout"],

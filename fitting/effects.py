@@ -35,11 +35,17 @@ sensor_latency      delay (s)                                   y(t) -> y(t - de
 
 Not realisable without core changes (``UNAVAILABLE``): ``mullins`` and a kinematic
 ``prestretch``; see the messages there.
+
+Normalized parameters (what the diagnosis's screening and fits move): each parameter maps
+its bounds onto z in [0, 1], linearly or in log scale (``Param.z_of``, ``Param.from_z``,
+``Param.dx_dz``); ``param_list(names)`` orders the parameters of several effects and
+``values_at(names, z)`` gives their values at a point z.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Mapping
+import math
+from typing import Callable, Mapping, Sequence
 
 import equinox as eqx
 import jax
@@ -51,7 +57,7 @@ from dejax.material import Material
 
 __all__ = [
     "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "EFFECTS", "UNAVAILABLE",
-    "get", "names", "augment_material", "make_pieces", "apply_effects", "from_experiment",
+    "get", "names", "augment_material", "make_pieces", "apply_effects", "from_experiment", "param_list", "values_at",
 ]
 
 DORMANT = 1e-9  # shear modulus of a dormant viscous unit, relative to mu_inf
@@ -150,6 +156,30 @@ class Param:
     scale: str = "lin"
     unit: str = "-"
     doc: str = ""
+
+    def _span(self) -> tuple[float, float]:
+        lo, hi = self.bounds
+        return (math.log(lo), math.log(hi)) if self.scale == "log" else (lo, hi)
+
+    def z_of(self, x: float) -> float:
+        """Normalized position of the value ``x`` (clipped to the bounds) in [0, 1]; 0.5 for
+        x <= 0 in log scale."""
+        if self.scale == "log" and x <= 0:
+            return 0.5
+        x = min(max(x, self.bounds[0]), self.bounds[1])
+        a, b = self._span()
+        return min(max(((math.log(x) if self.scale == "log" else x) - a) / (b - a), 0.0), 1.0)
+
+    def from_z(self, z: float) -> float:
+        """The value at the normalized position ``z`` (clipped to [0, 1])."""
+        a, b = self._span()
+        v = a + min(max(z, 0.0), 1.0) * (b - a)
+        return math.exp(v) if self.scale == "log" else v
+
+    def dx_dz(self, x: float) -> float:
+        """d value / d z at the value ``x``."""
+        a, b = self._span()
+        return x * (b - a) if self.scale == "log" else (b - a)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -357,6 +387,22 @@ def apply_effects(pieces: Pieces, effects: Mapping[str, Mapping[str, float]]) ->
         e = get(name)
         pieces = e.apply(pieces, e.values(vals))
     return pieces
+
+
+def param_list(names: Sequence[str]) -> list[tuple[str, Param]]:
+    """(effect name, Param) of every parameter of the effects ``names``, in order: the
+    components of a normalized point z."""
+    return [(n, p) for n in names for p in get(n).params]
+
+
+def values_at(names: Sequence[str], z, fixed: Mapping | None = None) -> dict:
+    """{name: {param: value}} of the effects ``names`` at the normalized point ``z`` (see
+    ``param_list``), with the other effects of ``fixed`` ({name: values}) added."""
+    fixed = dict(fixed or {})
+    out = {n: dict(fixed.get(n, get(n).off())) for n in names}
+    for (n, p), zi in zip(param_list(names), z):
+        out[n][p.name] = p.from_z(zi)
+    return {**fixed, **out}
 
 
 def from_experiment(exp) -> dict:

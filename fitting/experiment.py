@@ -48,10 +48,6 @@ class Interp(eqx.Module):
         return jnp.interp(jnp.asarray(t, dtype=float), self.times, self.values)
 
 
-def _check_ok(sol, pred):
-    return jnp.where(sol.status == 0, pred, jnp.nan)
-
-
 FIT_STEP_CONTROL = None
 """Forward models of fits take the user's steps without cut-back: a differentiated run
 with cut-back replays its sub-steps (a second forward pass and a second compiled
@@ -62,7 +58,17 @@ program), which fits, with hundreds of gradient evaluations, cannot afford yet."
 # hash equal, so fit's compiled functions are reused (fit caches them per forward).
 
 
-class UniaxialForward(eqx.Module):
+class _AtObservations(eqx.Module):
+    """A forward of fits: its ``simulate(params, data)`` (a dejax Solution) read at the
+    observation times ``data["t_obs"]`` (its output ``output``; NaN where the simulation failed)."""
+
+    def __call__(self, params, data):
+        sol = self.simulate(params, data)
+        pred = jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output])
+        return jnp.where(sol.status == 0, pred, jnp.nan)
+
+
+class UniaxialForward(_AtObservations):
     """Stress (Pa) of a stretch-controlled uniaxial test at the observation times.
 
     n_units: viscous units; lz: thickness (m) when a voltage acts across it;
@@ -92,12 +98,8 @@ class UniaxialForward(eqx.Module):
                            it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse),
                            control=FIT_STEP_CONTROL)
 
-    def __call__(self, params, data):
-        sol = self.simulate(params, data)
-        return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
-
-class BlockForward(eqx.Module):
+class BlockForward(_AtObservations):
     """An output of the DE block (default lateral_stretch) under a voltage history."""
 
     n_units: int = eqx.field(static=True, converter=int)
@@ -112,12 +114,8 @@ class BlockForward(eqx.Module):
         return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
                            control=FIT_STEP_CONTROL)
 
-    def __call__(self, params, data):
-        sol = self.simulate(params, data)
-        return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
-
-class RolledForward(eqx.Module):
+class RolledForward(_AtObservations):
     """Axial displacement x_P (m) of the rolled tube under a voltage history."""
 
     n_units: int = eqx.field(static=True, converter=int)
@@ -134,10 +132,6 @@ class RolledForward(eqx.Module):
                              voltage=Interp(data["volt_t"], data["volt_v"]), damping=params.get("c_d", 0.0))
         return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
                            control=FIT_STEP_CONTROL)
-
-    def __call__(self, params, data):
-        sol = self.simulate(params, data)
-        return _check_ok(sol, jnp.interp(data["t_obs"], data["times"], sol.outputs[self.output]))
 
 
 # ----------------------------------------------------------------------------- targets

@@ -1,4 +1,4 @@
-"""Bounded Levenberg-Marquardt for the fits of ``fitting.fit`` and ``fitting.diagnose``.
+"""Bounded Levenberg-Marquardt for the fits of ``fitting.fit`` and ``fitting.effect_fit``.
 
 ``levenberg_marquardt(fun, x0, lower, upper, jacobian=None, ...) -> LeastSquaresResult``
 minimizes ``|r(x)|^2`` over the box ``lower <= x <= upper``.

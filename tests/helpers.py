@@ -1,9 +1,12 @@
 """Helpers shared by several test modules (imported as ``helpers``, like ``svk``)."""
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from dejax import integrate as it
 from dejax import model as mdl
+from fitting import effects as fx
+from fitting import forward as fw
 from fitting.schema import DataError
 
 
@@ -33,3 +36,38 @@ def rest_state(m):
     """The reference state at rest (what integrate.initial_state gives without load)."""
     z = jnp.zeros_like(m.q0)
     return it.State(t=jnp.asarray(0.0), q=m.q0, v=z, qdd=z, a=z, Cv=mdl.initial_viscous_state(m))
+
+
+class AnalyticForward(fw.Forward):
+    """A diagnosis forward model in closed form (no simulation): the quasi-static response
+    y = 1 + k u_e(t)^2 / (1 + rel), u_e the command lagged by ``voltage_lag`` (tau) and rel
+    the ``electrode_stiffness``; the sensor effects as in ``fitting.forward.Forward``."""
+
+    def __init__(self, k=0.02 / 14e3 ** 2):
+        self.pieces0 = fx.Pieces(None, None, fx.Sensor(), {})
+        self.k = k
+        self._cache = {}
+        self.n_sims = 0
+        self.transform = None
+
+    def _launch(self, effects, trace):
+        tau = effects.get("voltage_lag", {}).get("tau", 0.0)
+        rel = effects.get("electrode_stiffness", {}).get("rel", 0.0)
+        u = np.asarray(fx.lowpass(trace.voltage_history, tau, jnp.asarray(trace.time)))
+        self.n_sims += 1
+        return 1.0 + self.k * u ** 2 / (1.0 + rel)
+
+    def _finish(self, effects, trace, launched):
+        return launched
+
+
+ANALYTIC_CONDITIONS = [("f1", "fit", 14e3, 2.0), ("f2", "fit", 10e3, 5.0), ("h", "holdout", 12e3, 3.0)]
+"""(name, role, phi_max V, freq Hz) of the analytic diagnosis tests' traces."""
+ANALYTIC_SIGMA = 1e-4  # their noise
+
+
+def analytic_traces(truth, seed=0):
+    """Three traces (2 fit, 1 holdout; 3 cycles of 40 samples) of ``AnalyticForward`` with
+    the effects ``truth`` plus white noise ``ANALYTIC_SIGMA``."""
+    return fw.synthetic_traces(AnalyticForward(), ANALYTIC_CONDITIONS, truth, ANALYTIC_SIGMA, seed=seed, n_cycles=3,
+                               samples_per_cycle=40)

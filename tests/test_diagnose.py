@@ -1,59 +1,26 @@
-"""fitting.diagnose: ranking, verdict, uncertainties and breakdowns against known synthetic truth.
+"""fitting.diagnose: ranking, verdict, uncertainties and shrinkage against known synthetic truth.
 
-Fast tests use an analytic forward model (closed-form quasi-static response
-y = 1 + k u_e(t)^2 / (1 + rel), u_e the lagged command), so the diagnosis logic is
-checked in seconds; the simulation-based end-to-end check is in the slow tier, ``pytest --runslow``
-(it compiles the block simulation: ~1-2 min on a shared CPU)."""
+Fast tests use an analytic forward model (``helpers.AnalyticForward``: closed-form
+quasi-static response y = 1 + k u_e(t)^2 / (1 + rel), u_e the lagged command), so the
+diagnosis logic is checked in seconds; the simulation-based end-to-end check is in the slow
+tier, ``pytest --runslow`` (it compiles the block simulation: ~1-2 min on a shared CPU)."""
 import argparse
 import json
 import os
 
-import jax.numpy as jnp
-import numpy as np
 import pytest
 
 from fitting import cli as fitting_cli
 from fitting import diagnose as dg
-from fitting import effects as fx
 from fitting import report
+from helpers import ANALYTIC_SIGMA as SIGMA  # noqa: E402  (tests/helpers.py)
+from helpers import AnalyticForward, analytic_traces
 
-
-class AnalyticForward(dg.Forward):
-    def __init__(self, k=0.02 / 14e3 ** 2):
-        self.pieces0 = fx.Pieces(None, None, fx.Sensor(), {})
-        self.k = k
-        self._cache = {}
-        self.n_sims = 0
-        self.transform = None
-
-    def _launch(self, effects, trace):
-        tau = effects.get("voltage_lag", {}).get("tau", 0.0)
-        rel = effects.get("electrode_stiffness", {}).get("rel", 0.0)
-        u = np.asarray(fx.lowpass(trace.voltage_history, tau, jnp.asarray(trace.time)))
-        self.n_sims += 1
-        return 1.0 + self.k * u ** 2 / (1.0 + rel)
-
-    def _finish(self, effects, trace, launched):
-        return launched
-
-
-CONDS = [("f1", "fit", 14e3, 2.0), ("f2", "fit", 10e3, 5.0), ("h", "holdout", 12e3, 3.0)]
 CANDS = ["voltage_lag", "electrode_stiffness", "sensor_offset", "sensor_drift", "sensor_latency"]
-SIGMA = 1e-4
-
-
-def _traces(truth, seed=0):
-    return dg.synthetic_traces(AnalyticForward(), CONDS, truth, SIGMA, seed=seed, n_cycles=3, samples_per_cycle=40)
-
-
-def test_noise_estimate():
-    tr = _traces({}, seed=3)
-    s = dg.estimate_noise(tr)
-    assert abs(s / SIGMA - 1) < 0.1
 
 
 def test_control_no_false_alarm():
-    d = dg.diagnose(AnalyticForward(), _traces({}, seed=1), CANDS)
+    d = dg.diagnose(AnalyticForward(), analytic_traces({}, seed=1), CANDS)
     assert d.verdict == "no significant gap" and d.best is None
     assert d.chi2_ratio < d.chi2_limit
 
@@ -64,7 +31,7 @@ def test_control_no_false_alarm():
     ({"voltage_lag": {"tau": 0.02}}, "voltage_lag", "tau", 0.02),
 ])
 def test_identifies_true_effect(truth, name, param, value):
-    tr = _traces(truth, seed=2)
+    tr = analytic_traces(truth, seed=2)
     d = dg.diagnose(AnalyticForward(), tr, CANDS)
     assert d.best == name, d.table()
     top = d.ranking[0]
@@ -75,18 +42,20 @@ def test_identifies_true_effect(truth, name, param, value):
     assert d.verdict == f"gap explained by '{name}'"
 
 
-def test_breakdown_localises_offset():
-    # an offset shows up as a mean gap, not as amplitude/phase gaps
-    d = dg.diagnose(AnalyticForward(), _traces({"sensor_offset": {"c": 2e-3}}, seed=4), ["sensor_offset"])
+def test_offset_shows_in_the_breakdown_before_and_not_after():
+    # an offset shows up as a mean gap, not as amplitude/phase gaps; the best effect closes it
+    d = dg.diagnose(AnalyticForward(), analytic_traces({"sensor_offset": {"c": 2e-3}}, seed=4), ["sensor_offset"])
     f = d.breakdown_before["features"]
     assert f["mean"]["mean_gap"] == pytest.approx(-2e-3, abs=1e-4)
     assert f["amplitude"]["rms_gap"] < 1e-4
     for e in d.breakdown_before["traces"]:
         assert e["mean_residual"] == pytest.approx(-2e-3, abs=1e-4)
+    assert abs(d.breakdown_after["features"]["mean"]["mean_gap"]) < 1e-4
+    assert d.shrinkage["features"]["mean"]["shrinkage"] > 0.9
 
 
 def test_report_and_cli_registration(tmp_path):
-    tr = _traces({"sensor_offset": {"c": 1e-3}}, seed=5)
+    tr = analytic_traces({"sensor_offset": {"c": 1e-3}}, seed=5)
     d = dg.diagnose(AnalyticForward(), tr, ["sensor_offset", "voltage_lag"])
     files = report.write_report(d, tr, tmp_path)
     js = json.loads((tmp_path / "report.json").read_text())
@@ -114,7 +83,7 @@ def test_block_simulation_identifies_voltage_lag():
 
 
 def test_diagnose_reports_progress_per_candidate(capsys):
-    tr = _traces({"voltage_lag": {"tau": 0.02}})
+    tr = analytic_traces({"voltage_lag": {"tau": 0.02}})
     dg.diagnose(AnalyticForward(), tr, ["voltage_lag", "sensor_offset"], noise=SIGMA, verbose=True)
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("[diagnose] baseline: simulating 3 trace(s)")
@@ -124,24 +93,10 @@ def test_diagnose_reports_progress_per_candidate(capsys):
     assert capsys.readouterr().out == ""
 
 
-def test_screening_is_exact_for_a_linear_effect_and_fits_only_the_best():
-    """The screening's bounded linear least squares on forward-difference columns: for the
-    sensor offset (linear in its parameter) it is the exact fit, c = mean(measured - model);
-    with fit_top = 1 only the best screened candidate is fitted, the others are reported as
-    screened out and never chosen."""
-    tr = _traces({"sensor_offset": {"c": 1e-3}}, seed=6)
-    fwd = AnalyticForward()
-    fit = [t for t in tr if t.role == "fit"]
-    r0 = np.concatenate([fwd.predict({}, t) - t.y for t in fit])
-    scr = dg.screen(fwd, CANDS, fit, r0)
-    off = scr[("sensor_offset",)]
-    c_exact = -float(np.mean(r0))
-    c_screen = dg._values_of(dg._plist(["sensor_offset"]), off.z, ["sensor_offset"], {})["sensor_offset"]["c"]
-    assert c_screen == pytest.approx(c_exact, rel=1e-9)
-    assert off.sse == pytest.approx(float(np.sum((r0 - r0.mean()) ** 2)), rel=1e-9)
-    assert ("voltage_lag", "sensor_offset") in scr and len(scr) == 5 + 10  # every pair screened too
-    assert min(scr, key=lambda g: scr[g].d_bic if len(g) == 1 else np.inf) == ("sensor_offset",)
-    d = dg.diagnose(fwd, tr, CANDS, fit_top=1)
+def test_fit_top_fits_only_the_best_screened_candidate():
+    """With fit_top = 1 only the best screened candidate is fitted, the others are reported
+    as screened out and never chosen."""
+    d = dg.diagnose(AnalyticForward(), analytic_traces({"sensor_offset": {"c": 1e-3}}, seed=6), CANDS, fit_top=1)
     assert d.best == "sensor_offset" and d.ranking[0]["fitted"]
     assert [c["fitted"] for c in d.ranking].count(True) == 1
     assert all(not c["significant"] for c in d.ranking if not c["fitted"])

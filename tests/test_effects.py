@@ -103,3 +103,23 @@ def test_names_and_errors():
     for e in fx.EFFECTS.values():
         for p in e.params:
             assert p.bounds[0] <= p.off <= p.bounds[1] and p.bounds[0] <= p.start <= p.bounds[1]
+
+
+def test_normalized_parameters():
+    """z in [0, 1] spans a parameter's bounds linearly or in log scale; values outside the
+    bounds are clipped; values_at fills a point's effects, the off values elsewhere."""
+    lin = fx.Param("c", 0.0, (-1.0, 1.0), 0.0)
+    log = fx.Param("tau", 5.0, (0.5, 50.0), 5.0, "log")
+    assert lin.z_of(0.0) == 0.5 and lin.from_z(0.75) == 0.5 and lin.dx_dz(0.3) == 2.0
+    assert lin.z_of(3.0) == 1.0 and lin.from_z(-0.2) == -1.0  # clipped to the box
+    assert log.z_of(5.0) == pytest.approx(0.5, rel=1e-14)  # the geometric middle of [0.5, 50]
+    assert log.from_z(0.25) == pytest.approx(0.5 * 10 ** 0.5, rel=1e-14)
+    assert log.dx_dz(5.0) == pytest.approx(5.0 * np.log(100.0), rel=1e-14)
+    assert log.z_of(0.0) == 0.5  # no log of 0: the middle
+    for z in (0.0, 0.3, 1.0):
+        assert log.z_of(log.from_z(z)) == pytest.approx(z, abs=1e-14)
+    assert [(n, p.name) for n, p in fx.param_list(["leakage", "sensor_offset"])] == [
+        ("leakage", "frac"), ("leakage", "tau"), ("sensor_offset", "c")]
+    v = fx.values_at(["leakage", "sensor_offset"], [0.5, 0.0, 1.0], fixed={"voltage_lag": {"tau": 0.01}})
+    assert v["leakage"] == pytest.approx({"frac": 0.3, "tau": 0.05}, rel=1e-14)
+    assert (v["sensor_offset"], v["voltage_lag"], len(v)) == ({"c": 1.0}, {"tau": 0.01}, 3)

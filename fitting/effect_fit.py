@@ -1,0 +1,69 @@
+"""Candidate effects fitted to the traces, the baseline held: ``fit_effects``.
+
+Bounded Levenberg-Marquardt (``fitting.least_squares``) over the effects' normalized
+parameters z in [0, 1] (``fitting.effects``), on the residuals of the diagnosis's forward
+model (``fitting.forward``) with a forward-difference Jacobian, Broyden-updated between
+its evaluations so that the one compiled ``simulate`` is reused; Gauss-Newton standard
+errors s^2 (J^T J)^-1 in natural units at the optimum.
+"""
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from . import effects as fx
+from .forward import Forward, fd_jacobian, residuals_at
+from .least_squares import levenberg_marquardt
+from .traces import Trace
+
+__all__ = ["fit_effects"]
+
+
+def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], start: Mapping | None = None,
+                max_iter: int = 8, fixed: Mapping | None = None, rtol: float = 1e-4, z0=None):
+    """Bounded Levenberg-Marquardt (``fitting.least_squares``) over the parameters of the
+    effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
+    Jacobian at the start and the solution, Broyden-updated between them (so the one
+    compiled ``simulate`` is reused); others in ``fixed`` held. Starts from the better of
+    the off values and ``z0`` (e.g. the screening's linearized optimum), without ``z0``
+    of the off values and the effects' start values. At most ``max_iter`` evaluations
+    besides the Jacobians'; stops when an accepted step lowers the SSE by less than
+    ``rtol`` (relative). Returns (values, stderr, sse, J)."""
+    fixed = dict(fixed or {})
+    start = dict(start or {})
+    plist = fx.param_list(names)
+    resid_many = residuals_at(fwd, names, traces, fixed)
+
+    def resid(z):
+        return resid_many([z])[0]
+
+    # starts: the off values (the baseline, cached) and z0 when given, else the effects'
+    # start values; keep the better
+    cands = [np.array([p.z_of(start.get(n, {}).get(p.name, getattr(p, src))) for n, p in plist])
+             for src in (("off",) if z0 is not None else ("off", "start"))]
+    if z0 is not None:
+        cands.append(np.clip(np.asarray(z0, dtype=float), 0.0, 1.0))
+    best_z, best_sse = None, np.inf
+    for z, r in zip(cands, resid_many(cands)):
+        if r @ r < best_sse:
+            best_z, best_sse = z, float(r @ r)
+    res = levenberg_marquardt(resid, best_z, np.zeros(best_z.size), np.ones(best_z.size),
+                              jacobian=lambda z, r: fd_jacobian(resid_many, z, r), max_evals=max_iter + 1,
+                              ftol=rtol, xtol=1e-7, broyden=True)
+    z, sse, J = res.x, res.cost, res.J
+    # Gauss-Newton covariance in natural units
+    vals = fx.values_at(names, z, fixed)
+    stderr = {}
+    n, k = res.r.size, z.size
+    s2 = sse / max(n - k, 1)
+    D = np.array([p.dx_dz(vals[nm][p.name]) for nm, p in plist])
+    Jx = J / D[None, :]
+    try:
+        cov = s2 * np.linalg.pinv(Jx.T @ Jx)
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        sd = np.full(k, np.nan)
+    for (nm, p), s_ in zip(plist, sd):
+        stderr.setdefault(nm, {})[p.name] = float(s_)
+    return vals, stderr, sse, J

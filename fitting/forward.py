@@ -1,0 +1,229 @@
+"""The forward model of a gap diagnosis: a baseline simulation with candidate effects
+(``fitting.effects``) switched on, predicting the traces' responses.
+
+* ``Forward(problem, output, ...)``: ``predict(effects, trace)`` and ``predict_many(jobs)``
+  (the measurement: the sensor effects applied to ``raw``), ``residuals(effects_list,
+  traces)``; one compiled ``simulate`` for the baseline and every candidate (effects only
+  swap leaves), each simulation cached per trace and model-effect values, the simulations
+  of a call started together so that independent runs overlap; ``n_sims`` counts them.
+* ``residuals_at(fwd, names, traces)``: the residuals as a function of the normalized
+  parameters z of the effects ``names`` (``effects.param_list``), several points at once;
+  ``fd_jacobian``: their forward-difference Jacobian in z (step ``FD_STEP``).
+* ``forward_from_experiment(exp)``: the forward and traces of a block experiment file;
+  ``block_forward``, ``synthetic_traces``: synthetic studies of the block.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, Mapping, Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from dejax import integrate as it
+from dejax import loads
+
+from . import effects as fx
+from .traces import Trace
+
+__all__ = ["Forward", "FD_STEP", "residuals_at", "fd_jacobian", "forward_from_experiment", "block_forward",
+           "synthetic_traces"]
+
+
+class Forward:
+    """Baseline + effects -> predicted outputs, reusing one compiled simulate.
+
+    problem: a dejax Problem built with ``effects.augment_material(material)``;
+    output: the output name (e.g. "lateral_stretch"); transform: optional y -> y' applied
+    to the raw output before the sensor (e.g. stretch -> displacement).
+
+    Newton: modified Newton (a reused factorization, Anderson-mixed corrections) by
+    default, 4-5x cheaper per step than full Newton on the block and equal to it within
+    1e-11 (lags of 10-20 ms, a fast unit, 100x added mass, at dt = 5e-4 and 1.25e-2 s); a
+    run that fails with it is rerun with full Newton. A failed run is scored with output
+    1e3 after the failure (a huge residual), not raised."""
+
+    def __init__(self, problem, output: str = "lateral_stretch", rho_inf: float | None = None,
+                 newton: it.NewtonOptions = it.NewtonOptions(tol=1e-8, max_iter=60, reuse=True), face_area: float | None = None,
+                 pad_to: int | None = None, transform=None):
+        self.problem = problem
+        self.pieces0 = fx.make_pieces(problem, face_area)
+        self.output = output
+        self.scheme = it.GeneralizedAlpha(problem.rho_inf if rho_inf is None else rho_inf)
+        self.newton = newton
+        self.pad_to = pad_to
+        self.transform = transform
+        self._cache: dict = {}
+        self.n_sims = 0
+
+    @staticmethod
+    def _key(effects: Mapping, trace: Trace):
+        items = []
+        for name in sorted(effects):
+            if fx.get(name).kind == "model":
+                items.append((name, tuple(sorted((k, round(float(v), 15)) for k, v in effects[name].items()))))
+        return (trace.name, tuple(items))
+
+    def _launch(self, effects: Mapping, trace: Trace):
+        """Start the simulation of ``trace`` with the model effects of ``effects`` (JAX
+        dispatches it asynchronously); returns what ``_finish`` turns into the output."""
+        model_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "model"}
+        p = fx.apply_effects(self.pieces0, model_fx)
+        loading = eqx.tree_at(lambda l: l.voltages[0].base, p.loading, trace.voltage_history)
+        n = len(trace.time) - 1
+        pad = max(self.pad_to or n, n)
+        self.n_sims += 1
+        return p.model, loading, pad, it.simulate(p.model, loading, trace.time, self.problem.output_fn, self.scheme,
+                                                  self.newton, pad_to=pad, control=None)  # fixed steps, as fits
+
+    def _finish(self, effects: Mapping, trace: Trace, launched) -> np.ndarray:
+        model, loading, pad, sol = launched
+        if not sol.ok and self.newton.reuse and int(sol.status) == int(it.Status.NEWTON_FAILED):
+            full = dataclasses.replace(self.newton, reuse=False)
+            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full, pad_to=pad,
+                              control=None)
+            self.n_sims += 1
+        y = np.asarray(sol.outputs[self.output], dtype=float)
+        if not sol.ok:  # failed run: report a huge residual rather than crash the ranking
+            y = np.where(np.isfinite(y), y, 0.0)
+            y[int(sol.fail_step) + 1:] = 1e3
+        if self.transform is not None:
+            y = np.asarray(self.transform(y))
+        return y
+
+    def raw_many(self, jobs: Sequence[tuple]) -> list[np.ndarray]:
+        """Model outputs (before the sensor transform) of ``jobs`` = [(effects, trace)], each
+        on its trace's time grid: the simulations not cached are all started before any is
+        waited for, so that independent runs overlap on a multi-core CPU."""
+        if len(self._cache) > 2000:
+            self._cache.clear()
+        started = {}
+        for effects, trace in jobs:
+            key = self._key(effects, trace)
+            if key not in self._cache and key not in started:
+                started[key] = (effects, trace, self._launch(effects, trace))
+        for key, (effects, trace, launched) in started.items():
+            self._cache[key] = self._finish(effects, trace, launched)
+        return [self._cache[self._key(e, t)] for e, t in jobs]
+
+    def raw(self, effects: Mapping, trace: Trace) -> np.ndarray:
+        """Model output (before the sensor transform) on the trace's time grid."""
+        return self.raw_many([(effects, trace)])[0]
+
+    def predict_many(self, jobs: Sequence[tuple]) -> list[np.ndarray]:
+        """Predicted measurements of ``jobs`` = [(effects, trace)] (simulations overlapped)."""
+        ys = self.raw_many(jobs)
+        out = []
+        for (effects, trace), y in zip(jobs, ys):
+            sensor_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "sensor"}
+            if sensor_fx:
+                s = fx.apply_effects(self.pieces0, sensor_fx).sensor
+                y = np.asarray(s(jnp.asarray(trace.time), jnp.asarray(y)))
+            out.append(y)
+        return out
+
+    def predict(self, effects: Mapping, trace: Trace) -> np.ndarray:
+        return self.predict_many([(effects, trace)])[0]
+
+    def residuals(self, effects_list: Sequence[Mapping], traces: Sequence[Trace]) -> list[np.ndarray]:
+        """Residuals (model - measured, concatenated over ``traces``) of each effects dict, the
+        simulations of all of them started together."""
+        preds = self.predict_many([(e, tr) for e in effects_list for tr in traces])
+        k = len(traces)
+        return [np.concatenate([p - tr.y for p, tr in zip(preds[i * k:(i + 1) * k], traces)])
+                for i in range(len(effects_list))]
+
+
+# ----------------------------------------------------------------------------- residuals in normalized parameters
+
+
+def residuals_at(fwd: Forward, names: Sequence[str], traces: Sequence[Trace],
+                 fixed: Mapping | None = None) -> Callable[[Sequence[np.ndarray]], list[np.ndarray]]:
+    """``resid_many(zs) -> [residuals]``: the residuals of ``traces`` with the effects
+    ``names`` at each normalized point z of ``zs`` (``effects.values_at``; the effects of
+    ``fixed`` held), the simulations of all points started together."""
+    return lambda zs: fwd.residuals([fx.values_at(names, z, fixed) for z in zs], traces)
+
+
+FD_STEP = 1e-3
+"""Finite-difference step of the diagnosis's Jacobians, in the normalized parameters z in
+[0, 1] (one-sided, into the box)."""
+
+
+def fd_jacobian(resid_many, z, r, h: float = FD_STEP) -> np.ndarray:
+    """(m, k) forward differences at z (backward where z + h leaves [0, 1]);
+    ``resid_many(list of z) -> list of residuals`` evaluates the k points together."""
+    steps = np.where(z + h <= 1.0, h, -h)
+    points = []
+    for j in range(z.size):
+        zz = z.copy()
+        zz[j] += steps[j]
+        points.append(zz)
+    return np.stack([(rj - r) / hj for rj, hj in zip(resid_many(points), steps)], axis=1)
+
+
+# ----------------------------------------------------------------------------- experiment files
+
+
+def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
+    """Forward model and traces (the experiment's, with their response channel) of a
+    block-scenario Experiment. Response channel: ``stretch`` (lateral stretch) or
+    ``displacement`` ((stretch - 1) L, m)."""
+    from dejax import scenarios as sc
+    from dejax.material import Material
+
+    if exp.scenario != "block":
+        raise NotImplementedError(f"diagnose supports the 'block' scenario for now, not '{exp.scenario}'")
+    g = exp.geometry
+    L = float(g.get("L", g.get("lx", 1e-3)))
+    mat = fx.augment_material(Material(**exp.material_kwargs()))
+    traces = []
+    channel = None
+    for tr in exp.traces:
+        ch = "stretch" if "stretch" in tr.channels else "displacement" if "displacement" in tr.channels else None
+        if ch is None:
+            raise ValueError(f"trace '{tr.name}': needs a 'stretch' or 'displacement' channel for the block")
+        if channel not in (None, ch):
+            raise ValueError("all traces must carry the same response channel")
+        channel = ch
+        if tr.voltage_history is None:
+            raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
+        traces.append(dataclasses.replace(tr, response=ch))
+    pad = max(len(t) for t in traces) - 1
+    prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat,
+                    gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)),
+                    voltage=traces[0].voltage_history)
+    transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
+    fwd = Forward(prob, "lateral_stretch", rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
+    return fwd, traces
+
+
+# ----------------------------------------------------------------------------- synthetic studies
+
+
+def block_forward(material=None, L: float = 1e-3, pad_to: int | None = None) -> Forward:
+    """Forward model of the 1-element DE block (paper Sec. 4 material by default) with two
+    dormant viscous units, output lateral_stretch."""
+    from dejax import scenarios as sc
+
+    mat = fx.augment_material(sc.block_material() if material is None else material)
+    prob = sc.block(L=L, material=mat, voltage=loads.Sine(12e3, 1.0))
+    return Forward(prob, "lateral_stretch", pad_to=pad_to)
+
+
+def synthetic_traces(fwd: Forward, conditions, truth: Mapping, noise: float, seed: int = 0,
+                     n_cycles: float = 3.0, samples_per_cycle: int = 40, channel: str = "stretch") -> list[Trace]:
+    """Traces of the block made with the effects ``truth`` ({name: values}) plus white noise,
+    their response ``channel`` (the forward's output), under a sine loading.
+    conditions: sequence of (name, role, phi_max V, freq Hz)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for name, role, phi, f in conditions:
+        n = int(round(n_cycles * samples_per_cycle))
+        t = np.linspace(0.0, n_cycles / f, n + 1)
+        tr = Trace(t, {channel: np.zeros_like(t)}, role, {"phi_max": phi, "freq": f}, name=name,
+                   loading={"kind": "sine", "phi_max": phi, "freq": f}, response=channel)
+        y = fwd.predict(truth, tr)
+        out.append(dataclasses.replace(tr, channels={channel: y + noise * rng.standard_normal(y.shape)}))
+    return out

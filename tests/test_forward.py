@@ -1,0 +1,67 @@
+"""fitting.forward: the diagnosis's forward model caches its simulations (sensor effects need
+none), its residuals in normalized parameters and their forward differences, and its
+builders (synthetic traces in closed form, an experiment file's traces)."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fitting import forward as fw
+from fitting.data import load_experiment
+from helpers import AnalyticForward, analytic_traces  # noqa: E402  (tests/helpers.py)
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "data" / "examples"
+K = 0.02 / 14e3 ** 2  # AnalyticForward's y = 1 + K u^2
+
+
+def test_synthetic_traces_follow_the_model_under_a_sine_loading():
+    tr = fw.synthetic_traces(AnalyticForward(), [("a", "holdout", 10e3, 4.0)], {}, 0.0, n_cycles=2,
+                             samples_per_cycle=8)
+    (t,) = tr
+    assert (t.name, t.role, t.response, t.conditions) == ("a", "holdout", "stretch", {"phi_max": 10e3, "freq": 4.0})
+    np.testing.assert_allclose(t.time, np.linspace(0.0, 0.5, 17), rtol=0, atol=1e-15)
+    u = 5e3 * (1.0 + np.sin(2 * np.pi * 4.0 * t.time + 1.5 * np.pi))  # the sine loading, paper Eq. (42)
+    np.testing.assert_allclose(t.y, 1.0 + K * u ** 2, rtol=1e-12)
+
+
+def test_simulations_are_cached_and_sensor_effects_run_none():
+    fwd = AnalyticForward()
+    t = analytic_traces({}, seed=0)[0]
+    y0 = fwd.predict({}, t)
+    assert fwd.n_sims == 1
+    np.testing.assert_array_equal(fwd.predict({}, t), y0)
+    np.testing.assert_allclose(fwd.predict({"sensor_offset": {"c": 1e-3}}, t), y0 + 1e-3, rtol=0, atol=1e-15)
+    drift = fwd.predict({"sensor_drift": {"rate": 2e-3}}, t)
+    np.testing.assert_allclose(drift, y0 + 2e-3 * (t.time - t.time[0]), rtol=0, atol=1e-15)
+    assert fwd.n_sims == 1  # the sensor effects transform the cached output
+    fwd.predict_many([({"voltage_lag": {"tau": 0.01}}, t), ({"voltage_lag": {"tau": 0.01}}, t)])
+    assert fwd.n_sims == 2  # one simulation for a new model effect, once
+
+
+def test_residuals_and_forward_differences_in_normalized_parameters():
+    """sensor_offset c = -1 + 2 z: the residuals move by 2 dz, the forward difference is 2
+    (backward at the upper bound z = 1)."""
+    tr = analytic_traces({"sensor_offset": {"c": 1e-3}}, seed=1)
+    fwd = AnalyticForward()
+    resid_many = fw.residuals_at(fwd, ["sensor_offset"], tr)
+    r_half, r_one = resid_many([np.array([0.5]), np.array([1.0])])
+    base = np.concatenate([fwd.predict({}, t) - t.y for t in tr])
+    np.testing.assert_allclose(r_half, base, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(r_one, base + 1.0, rtol=0, atol=1e-12)
+    for z, r in ((np.array([0.5]), r_half), (np.array([1.0]), r_one)):
+        J = fw.fd_jacobian(resid_many, z, r)
+        assert J.shape == (base.size, 1)
+        np.testing.assert_allclose(J, 2.0, rtol=1e-9)
+
+
+def test_forward_from_an_experiment_file():
+    exp = load_experiment(EXAMPLES / "block_example.toml")
+    fwd, traces = fw.forward_from_experiment(exp)
+    assert [t.name for t in traces] == [t.name for t in exp.traces]
+    for t, e in zip(traces, exp.traces):
+        assert t.response == "stretch" and t.role == e.role
+        np.testing.assert_array_equal(t.y, e["stretch"])
+    assert fwd.output == "lateral_stretch" and fwd.transform is None
+    assert fwd.pad_to == max(len(e) for e in exp.traces) - 1
+    with pytest.raises(NotImplementedError, match="'block' scenario for now, not 'uniaxial'"):
+        fw.forward_from_experiment(load_experiment(EXAMPLES / "vhb4910_uniaxial.toml"))
