@@ -19,6 +19,7 @@ are created with mode 0o666 & ~umask, as ``open`` would make them.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -134,15 +135,31 @@ def _attr_units(attrs) -> dict:
     return {k: unit_of(k) for k, v in attrs.items() if k != "units" and numeric(v)}
 
 
+@contextlib.contextmanager
+def atomic_file(path):
+    """Yield a temporary file's path in ``path``'s folder; when the block ends without error
+    it becomes ``path`` (renamed, mode as ``open`` gives), otherwise it is removed: a
+    failure never leaves a half-written file."""
+    p = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
 def write_h5(path, time, outputs: dict, params: dict | None = None, iterations=None, snapshots=None, attrs=None) -> Path:
-    """Write a results file atomically: a temporary file in the same folder, renamed at the end.
+    """Write a results file atomically (``atomic_file``).
 
     Raises OutputPathError (nothing is left behind) if the path cannot be written.
     """
     p = check_output_path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
-    os.close(fd)
-    try:
+    with atomic_file(p) as tmp:
         with h5py.File(tmp, "w") as f:
             f.create_dataset("time", data=np.asarray(time, dtype=float))
             f["time"].attrs["units"] = "s"
@@ -170,12 +187,6 @@ def write_h5(path, time, outputs: dict, params: dict | None = None, iterations=N
                 f.attrs[k] = _attr(v)
             f.attrs["dejax_version"] = __version__
             f.attrs["units"] = json.dumps(_attr_units(f.attrs))
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
     return p
 
 

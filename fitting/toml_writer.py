@@ -14,13 +14,11 @@ tables as ``[[a.b]]``, in the document's order; the top-level tables are always 
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
-from dejax.results import file_mode
+from dejax.results import atomic_file
 
 __all__ = ["dumps", "write_atomic"]
 
@@ -141,14 +139,7 @@ def write_atomic(path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` through a temporary file in the same folder renamed
     at the end: a failure never leaves a half-written file. Returns the path."""
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+    with atomic_file(p) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
-        os.chmod(tmp, file_mode())  # mkstemp's 0600 -> what open() would give
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
     return p
