@@ -1,20 +1,30 @@
 """dejax: differentiable hyper-viscoelastic simulation of dielectric elastomer actuators.
 
 Importing dejax enables float64 in JAX (the bulk-to-shear ratio K/mu ~ 1e5 needs it) and,
-unless ``XLA_FLAGS`` already sets it, restricts XLA:CPU's YNNPACK library fusions to
+with the jaxlib releases it was measured on (``CPU_XLA_FLAGS_JAXLIB``) and unless
+``XLA_FLAGS`` already names the option, restricts XLA:CPU's YNNPACK library fusions to
 matrix products (``CPU_XLA_FLAGS``): on the per-Gauss-point 3 x 3 algebra of the material
 its elementwise and reduction fusions are slower than XLA's own loops (tube 4x8x1: the
 element system 17.2 -> 6.0 ms, a residual 1.36 -> 0.98 ms, a time step 9.4 -> 6.4 ms;
-tube 12x20x4: the element system 669 -> 371 ms; ``python bench/xla_cpu_options.py``). The
+tube 12x20x4: the element system 669 -> 371 ms; ``python bench/xla_cpu_options.py``).
+Other releases are left alone: XLA aborts the process on an option it does not know. The
 flag takes effect only if dejax is imported before JAX's CPU backend starts (JAX reads
 ``XLA_FLAGS`` then).
 """
+import importlib.metadata
 import os
 
 CPU_XLA_FLAGS = ("--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_DOT",)
+CPU_XLA_FLAGS_JAXLIB = ("0.10.",)  # jaxlib version prefixes that know (and were measured with) these flags
 
 
 def _set_xla_flags(flags=CPU_XLA_FLAGS) -> None:
+    try:
+        jaxlib = importlib.metadata.version("jaxlib")
+    except importlib.metadata.PackageNotFoundError:
+        return
+    if not jaxlib.startswith(CPU_XLA_FLAGS_JAXLIB):
+        return
     current = os.environ.get("XLA_FLAGS", "")
     added = [f for f in flags if f.split("=", 1)[0] not in current]
     if added:
