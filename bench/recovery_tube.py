@@ -2,7 +2,7 @@
 point 4), and which extra experiment would separate what the traces do not.
 
     python bench/recovery_tube.py [--mesh 4x8x1] [--cycles 2] [--steps-per-cycle 100]
-                                  [--starts 3] [--max-evals 25] [--json recovery.json]
+                                  [--starts 3] [--max-evals 25] [--freqs 10,30] [--json recovery.json]
 
 1. Truth: the tube (h = r = 2 mm, L = 8 mm) with Model IV (Table 2: mu_inf = 72 kPa, mu_s = 10,
    10, 80, 80 kPa, eta_s = 5000, 2000, 300, 100 Pa s), the sine voltage of Eq. 42 to 50 kV at
@@ -37,7 +37,6 @@ from fitting.traces import from_samples
 FREE = tuple(f"{k}_{i}" for k in ("mu", "eta") for i in range(1, 5))
 NOISE = 0.01  # of each trace's peak |x_P|
 PHI_MAX = 50e3  # V
-FIT_FREQS = (10.0, 30.0)  # Hz
 CANDIDATES = ((1.0, PHI_MAX), (3.0, PHI_MAX), (100.0, PHI_MAX), (30.0, 25e3))  # (Hz, V)
 
 
@@ -92,17 +91,19 @@ def main():
     ap.add_argument("--steps-per-cycle", type=int, default=100)
     ap.add_argument("--starts", type=int, default=3)
     ap.add_argument("--max-evals", type=int, default=25)
+    ap.add_argument("--freqs", default="10,30", help="comma-separated frequencies of the fitted traces (Hz)")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     shape = tuple(int(s) for s in a.mesh.split("x"))
+    freqs = tuple(float(f) for f in a.freqs.split(","))
     rng = np.random.default_rng(a.seed)
     p_true = truth()
     fw = RolledForward(4, 2e-3, 2e-3, 8e-3, shape=shape)
     tic = time.perf_counter()
-    made = [synthetic_trace(fw, p_true, f, PHI_MAX, a.cycles, a.steps_per_cycle, rng) for f in FIT_FREQS]
+    made = [synthetic_trace(fw, p_true, f, PHI_MAX, a.cycles, a.steps_per_cycle, rng) for f in freqs]
     traces = [t for t, _ in made]
-    print(f"tube {a.mesh}, Model IV, {a.cycles} cycles x {a.steps_per_cycle} steps at {FIT_FREQS} Hz, "
+    print(f"tube {a.mesh}, Model IV, {a.cycles} cycles x {a.steps_per_cycle} steps at {freqs} Hz, "
           f"{PHI_MAX / 1e3:g} kV, noise {100 * NOISE:g} % of the peak; traces made in {time.perf_counter() - tic:.0f} s")
     bounds = {k: (p_true[k] / 30.0, p_true[k] * 30.0) for k in FREE}
     out = dict(mesh=a.mesh, cycles=a.cycles, steps_per_cycle=a.steps_per_cycle, truth={k: p_true[k] for k in FREE},
@@ -133,7 +134,7 @@ def main():
                  ((jacobian_at(fw, p_true, t.data), s) for t, s in zip(traces, sig)))
     corr, se = correlation(fisher)
     c, i, j = worst_pair(corr)
-    rows = [("10 + 30 Hz, 50 kV (fitted)", c, i, j, se)]
+    rows = [(" + ".join(f"{f:g}" for f in freqs) + " Hz, 50 kV (fitted)", c, i, j, se)]
     for f, phi in CANDIDATES:
         data = loading_data(f, phi, a.cycles, a.steps_per_cycle)
         J = jacobian_at(fw, p_true, data)
