@@ -507,7 +507,8 @@ def register_sweep(subparsers):
     p.add_argument("--steps-per-cycle", type=positive_int("--steps-per-cycle"), default=40,
                    help="time steps per cycle (dt = 1 / (freq x steps))")
     p.add_argument("--method", choices=("sequential", "vmap"), default="sequential",
-                   help="one compiled run case after case, or all cases in one vmapped run")
+                   help="one compiled run case after case (one device), or all cases in one vmapped run, "
+                        "sharded over every device JAX sees (cases padded to a multiple of their number)")
     p.add_argument("--field-const", action="store_true", help="scale phi_max with h (constant phi_max/h)")
     p.add_argument("--json", default=None, help="also write rows + timing info as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress output")

@@ -7,11 +7,19 @@ and the same number of cycles, so all cases share ONE compiled stepper:
   arrays are rebuilt for each case and grafted onto the first case's static structure;
   the time grid has a fixed length, dt = 1/(f * steps_per_cycle)).
 * ``method="vmap"``: the cases are stacked and run in one ``jax.vmap``-ed, jitted
-  simulate; with more than one device the case axis is sharded over them
-  (``jax.sharding``), padded to a multiple of the device count. Caveat: under vmap
-  the Newton solver's ``lax.cond`` (refactor or reuse) executes both branches, so each
-  vmapped step does a full tangent + factorization: on one CPU it is slower than the
-  sequential path; it pays off on accelerators / several devices.
+  simulate. With more than one device in ``jax.devices()`` (several GPUs; on a CPU,
+  ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` set before JAX starts) the
+  case axis is sharded over all of them (``NamedSharding`` over a one-axis mesh
+  ``"case"``): the cases are padded with copies of the last one to a multiple of the
+  device count, each device runs its share, and the padding is dropped from the rows.
+  Every loop of the vmapped stepper (Newton, line search, cut-back) runs until the
+  slowest case of the whole batch is done: the devices exchange one boolean per
+  iteration (a scalar all-reduce), no case data. On emulated CPU devices keep the
+  XLA:CPU thread pool larger than the device count (``PJRT_NPROC``; see
+  ``_warn_cpu_pool``). Caveat: under vmap the Newton solver's ``lax.cond``
+  (refactor or reuse) executes both branches, so each vmapped step does a full
+  tangent + factorization: on one CPU it is slower than the sequential path; it pays
+  off on accelerators / several devices.
 
 Sweepable parameters: h, r, L (m), freq (Hz), phi_max (V); ``field_const=True`` scales
 phi_max with h to keep phi_max/h fixed (paper Fig. 20).
@@ -19,7 +27,9 @@ phi_max with h to keep phi_max/h fixed (paper Fig. 20).
 from __future__ import annotations
 
 import itertools
+import os
 import time
+import warnings
 
 import equinox as eqx
 import jax
@@ -115,6 +125,27 @@ def case_features(t, outputs, freq) -> dict:
             "k_c": float(tab["k_c"][-1]), "n_cycles": int(len(tab["cycle"]))}
 
 
+def _cpu_pool_size() -> int:
+    """Threads of XLA:CPU's intra-op pool: ``PJRT_NPROC``, else ``NPROC``, else the CPU count."""
+    for name in ("PJRT_NPROC", "NPROC"):
+        try:
+            return int(os.environ[name])
+        except (KeyError, ValueError):
+            pass
+    return os.cpu_count() or 1
+
+
+def _warn_cpu_pool(devices) -> None:
+    """Emulated CPU devices run their programs on ONE intra-op thread pool, and the batched
+    LAPACK LU (jaxlib's ``lapack_dgetrf_ffi``) waits on that pool for its sub-tasks: with
+    as many devices as pool threads, every thread can be waiting at once (seen with 2
+    devices on 2 cores: the run hangs). A larger pool (PJRT_NPROC) avoids it."""
+    if devices[0].platform == "cpu" and len(devices) >= _cpu_pool_size():
+        warnings.warn(f"{len(devices)} CPU devices on an XLA:CPU thread pool of {_cpu_pool_size()} threads: the "
+                      f"batched LU can deadlock; set PJRT_NPROC={len(devices) + 2} (or more) before JAX starts",
+                      RuntimeWarning, stacklevel=3)
+
+
 @eqx.filter_jit
 def _batched(M, Lg, G, out_fn, scheme, newton):
     """vmap of simulate over stacked models, loadings and time grids (one compilation per
@@ -132,8 +163,11 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
     """Run every case; returns (rows, info).
 
     rows: list of dicts (the case's parameters + case_features + ok/status; with
-    keep_series the time series under "series"). info: method, n_devices, wall_s
-    (total, compilation included), first_s (wall time of the first case / batch call).
+    keep_series the time series under "series"). info: method, n_devices (the devices
+    the cases ran on: 1 for sequential; for vmap, those holding the batch's results),
+    n_batch (cases per compiled call: 1, or for vmap the cases padded to a multiple of
+    the device count), wall_s (total, compilation included), first_s (wall time of the
+    first case / batch call).
     progress: optional ``progress(cases_done, n_cases, wall_s, ok)`` after each case
     (sequential) or once after the batch (vmap).
     """
@@ -145,6 +179,7 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
     tic = time.perf_counter()
     results = []
     first_s = None
+    n_used, n_batch = 1, 1  # devices the cases ran on, cases per compiled call (sequential: one on one)
     if method == "sequential":
         for m, l, g in zip(models, loadings, grids):
             t0 = time.perf_counter()
@@ -156,17 +191,18 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
             if progress is not None:
                 progress(len(results), len(cases), time.perf_counter() - tic, results[-1][2] == 0)
     elif method == "vmap":
-        n_dev = len(jax.devices())
+        devices = jax.devices()
         n = len(cases)
-        pad = (-n) % n_dev
-        idx = list(range(n)) + [n - 1] * pad
+        idx = list(range(n)) + [n - 1] * ((-n) % len(devices))  # pad with copies of the last case
+        n_batch = len(idx)
         stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[xs[i] for i in idx])
         M, Lg, G = stack(models), stack(loadings), jnp.asarray(np.stack([grids[i] for i in idx]))
-        if n_dev > 1:
+        if len(devices) > 1:
             from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-            dmesh = Mesh(np.array(jax.devices()), ("case",))
-            shard = NamedSharding(dmesh, PartitionSpec("case"))
+            # every stacked leaf split along its leading (case) axis, n_batch / n_devices per device
+            shard = NamedSharding(Mesh(np.array(devices), ("case",)), PartitionSpec("case"))
+            _warn_cpu_pool(devices)
             put = lambda a: jax.device_put(a, shard) if hasattr(a, "shape") and a.ndim >= 1 else a
             M, Lg, G = (jax.tree_util.tree_map(put, x) for x in (M, Lg, G))
 
@@ -174,8 +210,10 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
         outs, status = _batched(M, Lg, G, out_fn, scheme, newton)
         jax.block_until_ready(outs["x_P"])
         first_s = time.perf_counter() - t0
+        n_used = len(outs["x_P"].sharding.device_set)  # the devices the batch's results lie on
+        outs, status = {k: np.asarray(v) for k, v in outs.items()}, np.asarray(status)  # one transfer each
         for i in range(n):
-            results.append((grids[i], {k: np.asarray(v[i]) for k, v in outs.items()}, int(status[i])))
+            results.append((grids[i], {k: v[i] for k, v in outs.items()}, int(status[i])))
         if progress is not None:
             progress(n, n, time.perf_counter() - tic, all(r[2] == 0 for r in results))
     else:
@@ -189,6 +227,6 @@ def run_sweep(cases, shape=(1, 4, 1), n_cycles=2, steps_per_cycle=40, method="se
         if keep_series:
             row["series"] = {"time": t, **o}
         rows.append(row)
-    info = dict(method=method, n_devices=len(jax.devices()), n_cases=len(cases), wall_s=wall, first_s=first_s,
+    info = dict(method=method, n_devices=n_used, n_cases=len(cases), n_batch=n_batch, wall_s=wall, first_s=first_s,
                 shape=list(shape), n_cycles=n_cycles, steps_per_cycle=steps_per_cycle)
     return rows, info
