@@ -102,7 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--model", default="IV", choices=("I", "II", "III", "IV", "hyperelastic"), help="Table 2 material")
     r.add_argument("--freq", type=positive("--freq"), default=30.0, help="voltage frequency f (Hz)")
     r.add_argument("--phi-max", type=nonneg("--phi-max"), default=50e3, help="peak voltage phi_m (V)")
-    r.add_argument("--cycles", type=positive("--cycles"), default=10.0, help="number of voltage cycles")
+    r.add_argument("--cycles", type=positive("--cycles"), default=None,
+                   help="number of voltage cycles (default 10; with --voltage: the file's last time)")
+    r.add_argument("--voltage", default=None, metavar="CSV",
+                   help="voltage history replacing the sine: CSV with a header and rows 'time (s), voltage (V)', "
+                        "linear between rows; --freq then only sets the cycle length of the cycle features")
     r.add_argument("--mesh", type=mesh_shape, default=(12, 20, 4), help="n_l x n_s x n_r elements")
     r.add_argument("--h", type=positive("--h"), default=2e-3, help="wall thickness (m)")
     r.add_argument("--r", type=positive("--r"), default=2e-3, help="inner radius (m)")
@@ -361,11 +365,21 @@ def _run_rolled(args):
         over.setdefault("K", [7.5e9] * n)
         over.setdefault("Jm", [5.0] * n)
     material = scenarios.rolled_material(args.model, **over)
+    voltage = None
+    if args.voltage is not None:
+        from . import loads
+
+        voltage = loads.read_csv(args.voltage)  # ValueError naming file, row, column: exit 2
     problem = scenarios.rolled(material, args.freq, args.phi_max, h=args.h, r=args.r, L=args.L, shape=args.mesh,
                                gauss_order=args.gauss or 3, damping=args.damping, point=args.point,
-                               volumetric=args.volumetric)
+                               voltage=voltage, volumetric=args.volumetric)
     problem.params["model"] = args.model
-    return _run_problem(problem, args.cycles / args.freq, args.dt, args, ["x_P"], args.solver)
+    if voltage is not None:
+        problem.params["voltage_file"] = str(args.voltage)
+        t_end = args.cycles / args.freq if args.cycles is not None else float(voltage.times[-1])
+    else:
+        t_end = (args.cycles if args.cycles is not None else 10.0) / args.freq
+    return _run_problem(problem, t_end, args.dt, args, ["x_P"], args.solver)
 
 
 def _run_torsional(args):

@@ -120,3 +120,48 @@ def sample(histories, times) -> jax.Array:
     if not histories:
         return jnp.zeros((times.shape[0], 0))
     return jnp.stack([jnp.broadcast_to(h(times), times.shape) for h in histories], axis=1)
+
+
+def read_csv(path) -> PiecewiseLinear:
+    """A voltage history from a CSV file: a header line, then rows ``time (s), voltage (V)``,
+    times strictly increasing; linear between rows, constant outside (``PiecewiseLinear``).
+
+    Raises ValueError naming the file, row (1-based, the header is row 1) and column of any
+    cell that is missing, not a finite number, or out of order.
+    """
+    import csv
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: voltage history file not found")
+    with open(p, newline="") as f:
+        rows = [r for r in csv.reader(f)]
+    if not rows:
+        raise ValueError(f"{p}: empty file; expected a header and rows 'time (s), voltage (V)'")
+    header, body = rows[0], rows[1:]
+    if len(header) < 2:
+        raise ValueError(f"{p}, row 1: the header names {len(header)} column(s); expected two: time (s), voltage (V)")
+    times, values = [], []
+    for i, r in enumerate(body, start=2):
+        if not r or all(not c.strip() for c in r):
+            continue
+        if len(r) < 2:
+            raise ValueError(f"{p}, row {i}: {len(r)} column(s); expected two: time (s), voltage (V)")
+        cells = []
+        for j, (name, cell) in enumerate(zip(header[:2], r[:2]), start=1):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise ValueError(f"{p}, row {i}, column {j} ({name.strip()!r}): {cell!r} is not a number") from None
+            if not np.isfinite(v):
+                raise ValueError(f"{p}, row {i}, column {j} ({name.strip()!r}): {cell!r} is not finite")
+            cells.append(v)
+        if times and cells[0] <= times[-1]:
+            raise ValueError(f"{p}, row {i}, column 1: time {cells[0]:g} s does not increase (previous row "
+                             f"{times[-1]:g} s)")
+        times.append(cells[0])
+        values.append(cells[1])
+    if len(times) < 2:
+        raise ValueError(f"{p}: {len(times)} data row(s); a voltage history needs at least two")
+    return PiecewiseLinear(times, values)

@@ -128,3 +128,31 @@ def test_flow_update_option_reaches_the_time_scheme():
             assert s.flow_update == want and isinstance(s, it.QuasiStatic if qs else it.GeneralizedAlpha)
     with pytest.raises(SystemExit):
         cli.build_parser().parse_args(["run", "block", "--out", "x.h5", "--flow-update", "trapezoid"])
+
+
+def test_run_rolled_voltage_file_drives_the_tube(tmp_path, capsys):
+    """A CSV voltage history sampled finely from the Eq. (42) sine gives the sine run's x_P
+    (to the interpolation error), and the run ends at the file's last time."""
+    t = np.linspace(0.0, 0.5 / 30.0, 401)
+    csv = tmp_path / "v.csv"
+    np.savetxt(csv, np.c_[t, 0.5 * 50e3 * (1.0 + np.sin(2 * np.pi * 30.0 * t + 1.5 * np.pi))], delimiter=",",
+               header="time_s,voltage_V", comments="")
+    common = ["run", "rolled", "--mesh", "1x4x1", "--dt", "1e-3", "--quiet"]
+    assert cli.main([*common, "--cycles", "0.5", "--out", str(tmp_path / "sine.h5")]) == 0
+    assert cli.main([*common, "--voltage", str(csv), "--out", str(tmp_path / "csv.h5")]) == 0
+    with h5py.File(tmp_path / "sine.h5") as a, h5py.File(tmp_path / "csv.h5") as b:
+        assert b["time"][-1] == pytest.approx(t[-1], rel=1e-12)
+        np.testing.assert_allclose(b["outputs/voltage"][()], a["outputs/voltage"][()], rtol=0, atol=50e3 * 2e-4)
+        xa, xb = a["outputs/x_P"][()], b["outputs/x_P"][()]
+        assert np.max(np.abs(xa - xb)) < 1e-3 * np.max(np.abs(xa))
+        assert b.attrs["voltage_file"] == str(csv)
+
+
+def test_run_rolled_bad_voltage_file_exits_2(tmp_path, capsys):
+    csv = tmp_path / "v.csv"
+    csv.write_text("time_s,voltage_V\n0,0\n0.01,x\n")
+    out = tmp_path / "r.h5"
+    rc = cli.main(["run", "rolled", "--mesh", "1x4x1", "--voltage", str(csv), "--out", str(out)])
+    assert rc == 2
+    assert "row 3, column 2" in capsys.readouterr().err
+    assert not out.exists()

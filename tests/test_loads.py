@@ -50,3 +50,31 @@ def test_sample_stacks_histories():
     out = loads.sample((loads.Constant(1.0), loads.RampHold(2.0, 1.0)), T)
     assert out.shape == (T.size, 2)
     assert loads.sample((), T).shape == (T.size, 0)
+
+
+def test_read_csv_is_piecewise_linear_through_the_rows(tmp_path):
+    p = tmp_path / "v.csv"
+    p.write_text("time_s,voltage_V\n0,0\n0.01,1000\n0.03,-500\n")
+    h = loads.read_csv(p)
+    np.testing.assert_allclose(np.asarray(h(jnp.array([0.0, 0.005, 0.02, 0.05]))), [0.0, 500.0, 250.0, -500.0])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("time_s,voltage_V\n0,0\n0.01,abc\n", "row 3, column 2 ('voltage_V'): 'abc' is not a number"),
+    ("time_s,voltage_V\n0,0\n0.02,1\n0.01,2\n", "row 4, column 1: time 0.01 s does not increase"),
+    ("time_s,voltage_V\n0,0\n0.01\n", "row 3: 1 column(s)"),
+    ("time_s,voltage_V\n0,nan\n0.01,1\n", "row 2, column 2 ('voltage_V'): 'nan' is not finite"),
+    ("time_s,voltage_V\n0,0\n", "1 data row(s)"),
+    ("", "empty file"),
+])
+def test_read_csv_names_file_row_and_column(tmp_path, text, message):
+    p = tmp_path / "v.csv"
+    p.write_text(text)
+    with pytest.raises(ValueError) as e:
+        loads.read_csv(p)
+    assert str(p) in str(e.value) and message in str(e.value)
+
+
+def test_read_csv_missing_file(tmp_path):
+    with pytest.raises(ValueError, match="not found"):
+        loads.read_csv(tmp_path / "nope.csv")
