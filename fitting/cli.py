@@ -15,6 +15,7 @@ import argparse
 import dataclasses
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -101,7 +102,8 @@ def sensitivity_handler(args) -> int:
     except ValueError:
         print(f"dejax sensitivity: error: --mesh must look like 1x4x1, got {args.mesh!r}", file=sys.stderr)
         return 2
-    setup = S.Setup(shape=shape, model=args.model, freq=args.freq, phi_max=args.phi_max, t_end=args.t_end, dt=args.dt)
+    setup = S.Setup(shape=shape, model=args.model, freq=args.freq, phi_max=args.phi_max, t_end=args.t_end, dt=args.dt,
+                    field=args.field)
     params = S.default_params(setup)
     names = [s.strip() for s in args.params.split(",") if s.strip()]
     try:
@@ -124,6 +126,21 @@ def sensitivity_handler(args) -> int:
         print(f"{k:>10} " + " ".join(f"{r:12.4g}" for r in rel) + ("  (last)" if np.ndim(y) else ""))
     print(f"one simulation {res['seconds_simulation']:.3f} s, jacfwd ({len(names)} parameters) "
           f"{res['seconds_jacobian']:.3f} s, ratio {res['ratio']:.2f}")
+    checks = None
+    if args.check:
+        tic = time.perf_counter()
+        fd = S.finite_differences(params, names, setup, rel_step=args.fd_step)
+        fd_s = time.perf_counter() - tic
+        rev = S.reverse_check(params, names, setup, jacobian=res["jacobian"])
+        print(f"{'output':>10} {'jacfwd vs central FD':>21} {'reverse vs forward':>19}   (max relative error)")
+        checks = {}
+        for k in res["jacobian"]:
+            e_fd = S.relative_error(res["jacobian"][k], fd[k])
+            e_rev = rev["rows"][k]["rel_error"]
+            checks[k] = dict(fd_rel_error=e_fd, reverse_rel_error=e_rev)
+            print(f"{k:>10} {e_fd:21.2e} {e_rev:19.2e}")
+        print(f"central differences ({2 * len(names)} simulations, step {args.fd_step:g} p) {fd_s:.1f} s; one reverse "
+              f"pass {rev['seconds_reverse']:.3f} s ({rev['seconds_reverse'] / res['seconds_simulation']:.2f} x a simulation)")
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -131,7 +148,9 @@ def sensitivity_handler(args) -> int:
                  values={k: np.asarray(v).tolist() for k, v in res["values"].items()},
                  jacobian={k: np.asarray(v).tolist() for k, v in res["jacobian"].items()},
                  seconds_simulation=res["seconds_simulation"], seconds_jacobian=res["seconds_jacobian"],
-                 ratio=res["ratio"], time=setup.times.tolist())
+                 ratio=res["ratio"], time=setup.times.tolist(), checks=checks,
+                 units=dict(time="s", x_P="m", x_max="m", x_min="m", mean="m", k_c="1", loop_area="V m",
+                            jacobian="output unit / parameter unit (parameters in SI: m, Pa, Pa s, F/m, kg/m^3)"))
         (out / "sensitivity.json").write_text(json.dumps(d))
         print(f"wrote {out / 'sensitivity.json'}")
     return 0
@@ -149,6 +168,11 @@ def register_sensitivity(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--phi-max", type=nonneg("--phi-max"), default=25e3, help="peak voltage (V)")
     p.add_argument("--t-end", type=positive("--t-end"), default=0.03, help="end time (s)")
     p.add_argument("--dt", type=positive("--dt"), default=5e-4, help="time step (s)")
+    p.add_argument("--field", type=positive("--field"), default=None,
+                   help="hold the nominal field phi_max / h fixed (V/m; phi_max then follows h, as in the paper's Fig. 20)")
+    p.add_argument("--check", action="store_true",
+                   help="also check the Jacobian against central finite differences and reverse mode (jax.vjp)")
+    p.add_argument("--fd-step", type=positive("--fd-step"), default=1e-4, help="relative step of --check's differences")
     p.add_argument("--out", default=None, help="folder for sensitivity.json")
     p.set_defaults(func=sensitivity_handler)
     return p

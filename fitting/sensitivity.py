@@ -31,11 +31,11 @@ import numpy as np
 
 from dejax import integrate as it
 from dejax import cycles as feat
-from dejax import parameters, scenarios
+from dejax import linsolve, parameters, scenarios
 
 from .fit import apply_params
 
-__all__ = ["Setup", "outputs", "sensitivity", "finite_differences", "default_params", "check_names"]
+__all__ = ["Setup", "outputs", "sensitivity", "reverse_check", "finite_differences", "default_params", "check_names"]
 
 GEOMETRY = ("h", "L", "r")
 
@@ -54,6 +54,8 @@ class Setup:
     tol: float = 1e-11
     max_iter: int = 50
     features: bool = True
+    field: float | None = None  # V/m: when set, phi_max = field * h (a fixed nominal field, paper Fig. 20)
+    solver: str = "auto"  # dejax.linsolve.choose_solver: dense LU up to 2,500 unknowns, SuperLU above
 
     @property
     def times(self) -> np.ndarray:
@@ -81,7 +83,8 @@ def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
     """Outputs (see the module docstring) for parameter vector ``p`` (values of ``names``),
     other parameters from ``base``."""
     vals = parameters.from_vector(p, names, base)
-    prob = scenarios.rolled(setup.model, freq=setup.freq, phi_max=setup.phi_max, h=vals["h"], r=vals["r"], L=vals["L"],
+    phi_max = setup.phi_max if setup.field is None else setup.field * vals["h"]
+    prob = scenarios.rolled(setup.model, freq=setup.freq, phi_max=phi_max, h=vals["h"], r=vals["r"], L=vals["L"],
                             shape=setup.shape)
     mat_p = {k: v for k, v in vals.items() if k not in GEOMETRY}
     model = apply_params(prob.model, mat_p)
@@ -89,7 +92,8 @@ def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
         model = eqx.tree_at(lambda m: m.damping, model, jnp.asarray(vals.get("c_d", 0.0), dtype=float))
     t = setup.times
     sol = it.simulate(model, prob.loading, t, prob.output_fn, it.GeneralizedAlpha(setup.rho_inf),
-                      it.NewtonOptions(tol=setup.tol, max_iter=setup.max_iter))
+                      it.NewtonOptions(tol=setup.tol, max_iter=setup.max_iter),
+                      linsolve.choose_solver(prob.model.structure, setup.solver))
     x = sol.outputs["x_P"]
     out = {"x_P": jnp.where(sol.status == 0, x, jnp.nan)}
     if setup.features:
@@ -150,6 +154,38 @@ def sensitivity(params: dict, names, setup: Setup = Setup(), timing: bool = True
             tj.append(_time.perf_counter() - tic)
         res.update(seconds_simulation=min(ts), seconds_jacobian=min(tj), ratio=min(tj) / min(ts))
     return res
+
+
+def reverse_check(params: dict, names, setup: Setup = Setup(), jacobian: dict | None = None, seed: int = 0) -> dict:
+    """Reverse mode against forward mode: for each output, w^T J (k,) by one reverse pass
+    (``jax.vjp`` through the whole run: the steps' implicit derivative rule transposed) with
+    random weights w, against w^T J from ``jacobian`` (the jacfwd result; computed if None).
+
+    Returns dict(rows: name -> dict(reverse (k,), forward (k,), rel_error), seconds_reverse
+    (s, one reverse pass after compilation), compile_seconds)."""
+    names = tuple(names)
+    check_names(names, params)
+    base = {k: float(v) for k, v in params.items()}
+    p = parameters.to_vector(base, names)
+    if jacobian is None:
+        jacobian = _block(_compiled(names, setup, "jac")(p, base))
+    key = (names, setup, "vjp")
+    if key not in _JIT:
+        _JIT[key] = jax.jit(lambda p, base, ct: jax.vjp(lambda q: outputs(q, names, base, setup), p)[1](ct)[0])
+    vjp = _JIT[key]
+    rng = np.random.default_rng(seed)
+    zeros = {k: np.zeros(np.shape(v)[:-1]) for k, v in jacobian.items()}
+    rows, secs = {}, []
+    for k, J in jacobian.items():
+        w = rng.standard_normal(zeros[k].shape)
+        ct = {**zeros, k: w}
+        tic = _time.perf_counter()
+        r = np.asarray(jax.block_until_ready(vjp(p, base, ct)))
+        secs.append(_time.perf_counter() - tic)  # the first includes compilation
+        f = np.tensordot(w, np.asarray(J), axes=w.ndim) if w.ndim else w * np.asarray(J)
+        den = np.max(np.abs(f)) or 1.0
+        rows[k] = dict(reverse=r, forward=f, rel_error=float(np.max(np.abs(r - f)) / den))
+    return dict(rows=rows, seconds_reverse=min(secs[1:] or secs), compile_seconds=secs[0])
 
 
 def finite_differences(params: dict, names, setup: Setup = Setup(), rel_step: float = 1e-4) -> dict:
