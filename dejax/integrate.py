@@ -857,18 +857,9 @@ def _default_max_substeps(n: int) -> int:
     return n + max(128, n // 2)
 
 
-def simulate(
-    model: Model,
-    loading: Loading,
-    times,
-    output_fn: Callable,
-    scheme=GeneralizedAlpha(),
-    newton: NewtonOptions = NewtonOptions(),
-    solver: LinearSolver | None = None,
-    state0: State | None = None,
-    pad_to: int | None = None,
-    control: StepControl | None = StepControl(),
-) -> Solution:
+def simulate(model: Model, loading: Loading, times, output_fn: Callable, scheme=GeneralizedAlpha(),
+             newton: NewtonOptions = NewtonOptions(), solver: LinearSolver | None = None, state0: State | None = None,
+             pad_to: int | None = None, control: StepControl | None = StepControl()) -> Solution:
     """Integrate over the time grid ``times`` (n+1,) in one jitted ``lax.scan``.
 
     Pure and differentiable (jax.jvp / jax.grad / jax.vmap) in ``model`` and
@@ -970,19 +961,9 @@ def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
     return res, t_res
 
 
-def run_chunked(
-    model: Model,
-    loading: Loading,
-    times,
-    output_fn: Callable,
-    scheme=GeneralizedAlpha(),
-    newton: NewtonOptions = NewtonOptions(),
-    solver: LinearSolver | None = None,
-    chunk: int = 500,
-    progress: Callable | None = None,
-    snapshot_times=(),
-    control: StepControl | None = StepControl(),
-):
+def run_chunked(model: Model, loading: Loading, times, output_fn: Callable, scheme=GeneralizedAlpha(),
+                newton: NewtonOptions = NewtonOptions(), solver: LinearSolver | None = None, chunk: int = 500,
+                progress: Callable | None = None, snapshot_times=(), control: StepControl | None = StepControl()):
     """``simulate`` in jitted chunks of ``chunk`` steps (primal only): progress reports
     and full states at chunk ends. Every chunk has the same compiled length (the last one
     is padded), so there is one compilation.

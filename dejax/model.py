@@ -152,21 +152,10 @@ def build_model(
              "mixed-constant": np.ones((points.shape[0], 1)), "displacement": None}[volumetric]
     is_pos = (free % 12) < 3
     dof_scale = np.where(is_pos, ell, 1.0)
-    structure = Structure(
-        conn=conn,
-        slots=slots,
-        edofs=edofs,
-        free=free,
-        col=col,
-        constrained=constrained,
-        n_dofs=mesh.n_dofs,
-        gauss_order=int(gauss_order),
-        dof_scale=dof_scale,
-        node_sets=dict(mesh.node_sets),
-        volumetric=volumetric,
-        incompressible=incompressible,
-        pressure_basis=basis,
-    )
+    structure = Structure(conn=conn, slots=slots, edofs=edofs, free=free, col=col, constrained=constrained,
+                          n_dofs=mesh.n_dofs, gauss_order=int(gauss_order), dof_scale=dof_scale,
+                          node_sets=dict(mesh.node_sets), volumetric=volumetric, incompressible=incompressible,
+                          pressure_basis=basis)
     pot = mesh.potential[:, conn, :]  # (n_ch, n_el, 8, 4)
     pot = pot.reshape(pot.shape[0], pot.shape[1], 32)
     field_dirs = jnp.einsum("cea,egai->cegi", pot, G)
@@ -174,19 +163,9 @@ def build_model(
     # stiffness rule would leave the mass matrix rank deficient)
     Nm, _, dVm = (N, G, dV) if gauss_order >= 4 else el.mesh_reference_data(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, 4)
     mass_e = jax.vmap(el.element_mass, in_axes=(0, 0, None))(Nm, dVm, material.rho)
-    return Model(
-        q0=mesh.reference_coordinates(),
-        N=N,
-        G=G,
-        dV=dV,
-        field_dirs=field_dirs,
-        mass_e=mass_e,
-        material=material,
-        damping=jnp.asarray(damping, dtype=float),
-        gravity=jnp.asarray(gravity, dtype=float),
-        prescribed_dirs=jnp.asarray(dirs),
-        _structure=Static(structure),
-    )
+    return Model(q0=mesh.reference_coordinates(), N=N, G=G, dV=dV, field_dirs=field_dirs, mass_e=mass_e,
+                 material=material, damping=jnp.asarray(damping, dtype=float), gravity=jnp.asarray(gravity, dtype=float),
+                 prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
 
 
 # ----------------------------------------------------------------------------- kinematics

@@ -336,6 +336,18 @@ class _Toml:
             raise self.error(f"'{key}' must be a table, got {type(value).__name__} {value!r}", key)
         return value
 
+    def array_of_tables(self, value, allowed, key: str, what: str):
+        """Yield (i, table) of an array of tables ``[[key]]`` (i from 1), checking each entry is a
+        table whose keys are all in ``allowed``; ``what`` names an entry in messages."""
+        for i, entry in enumerate(value, start=1):
+            if not isinstance(entry, dict):
+                raise self.error(f"{what} {i} must be a table", key)
+            for k in entry:
+                if k not in allowed:
+                    raise self.error(f"unknown key '{k}' in {what} {i}{suggest(k, allowed)}; allowed: "
+                                     f"{fmt_list(allowed)}", f"{key}.{k}")
+            yield i, entry
+
     def check_keys(self, table: dict, allowed, key: str) -> None:
         for k in table:
             if k not in allowed:
@@ -473,18 +485,11 @@ def _load_material(tf: _Toml, doc) -> dict:
     if not isinstance(units, list):
         raise tf.error("'units' must be an array of tables ([[material.units]])", "material.units")
     out_units = []
-    for i, u in enumerate(units):
-        key = f"material.units[{i + 1}]"
-        if not isinstance(u, dict):
-            raise tf.error(f"viscous unit {i + 1} must be a table", "material.units")
-        for k in u:
-            if k not in UNIT_KEYS:
-                raise tf.error(f"unknown key '{k}' in viscous unit {i + 1}{suggest(k, UNIT_KEYS)}; allowed: "
-                               f"{fmt_list(UNIT_KEYS)}", f"material.units.{k}")
+    for i, u in tf.array_of_tables(units, UNIT_KEYS, "material.units", "viscous unit"):
+        key = f"material.units[{i}]"
         for k in UNIT_KEYS:
             if k not in u:
-                raise tf.error(f"viscous unit {i + 1} lacks '{k}' (required: {fmt_list(UNIT_KEYS)})",
-                               "material.units")
+                raise tf.error(f"viscous unit {i} lacks '{k}' (required: {fmt_list(UNIT_KEYS)})", "material.units")
         out_units.append({k: tf.number(u, k, key, lower=0.0, strict=STRICTLY_POSITIVE[k]) for k in UNIT_KEYS})
     out["units"] = tuple(out_units)
     return out
@@ -651,21 +656,15 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
         raise tf.error("'traces' must be one or more [[traces]] tables", "traces")
     traces = []
     names = set()
-    for i, t in enumerate(traces_doc):
-        key = f"traces[{i + 1}]"
-        if not isinstance(t, dict):
-            raise tf.error(f"trace {i + 1} must be a table", "traces")
-        for k in t:
-            if k not in TRACE_KEYS:
-                raise tf.error(f"unknown key '{k}' in [[traces]] #{i + 1}{suggest(k, TRACE_KEYS)}; allowed: "
-                               f"{fmt_list(TRACE_KEYS)}", f"traces.{k}")
+    for i, t in tf.array_of_tables(traces_doc, TRACE_KEYS, "traces", "[[traces]] table"):
+        key = f"traces[{i}]"
         if "file" not in t:
-            raise tf.error(f"[[traces]] #{i + 1} lacks 'file'", "traces")
+            raise tf.error(f"[[traces]] #{i} lacks 'file'", "traces")
         if not isinstance(t["file"], str):
             raise tf.error(f"'file' must be a string path, got {t['file']!r}", "traces.file")
         csv_path = (tf.path.parent / t["file"])
         if not csv_path.is_file():
-            raise tf.error(f"[[traces]] #{i + 1}: trace file '{t['file']}' not found (looked for {csv_path})",
+            raise tf.error(f"[[traces]] #{i}: trace file '{t['file']}' not found (looked for {csv_path})",
                            "traces.file")
         role = t.get("role", "fit")
         if role not in ROLES:
@@ -692,7 +691,7 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
             for k in ("freq", "phi_max"):
                 if k in loading and k in conditions and is_number(conditions[k]) and not math.isclose(
                         loading[k], conditions[k], rel_tol=1e-12):
-                    raise tf.error(f"[[traces]] #{i + 1}: loading {k} = {loading[k]:g} disagrees with "
+                    raise tf.error(f"[[traces]] #{i}: loading {k} = {loading[k]:g} disagrees with "
                                    f"conditions {k} = {conditions[k]:g}", f"traces.loading.{k}")
         weight = t.get("weight", 1.0)
         if not is_number(weight) or weight < 0:
@@ -702,7 +701,7 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
             tr = load_trace_csv(csv_path, columns, units, role=role, conditions=conditions, loading=loading,
                                 name=name, weight=weight, required=required)
         except DataError as e:  # name the TOML too: the mapping or the file comes from it
-            err = DataError(f"{e} (trace file of [[traces]] #{i + 1} in {tf.path})")
+            err = DataError(f"{e} (trace file of [[traces]] #{i} in {tf.path})")
             err.file, err.row, err.column, err.key, err.line = e.file, e.row, e.column, e.key, e.line
             raise err from None
         if scenario in DYNAMIC_SCENARIOS:
@@ -711,7 +710,7 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
                 raise DataError(f"no response channel (e.g. displacement, angle) mapped for scenario "
                                 f"'{scenario}'; mapped: {fmt_list(tr.columns)}", file=csv_path)
             if "voltage" not in tr.channels and tr.loading is None:
-                raise tf.error(f"[[traces]] #{i + 1} ('{name}'): no voltage column and no 'loading' table; "
+                raise tf.error(f"[[traces]] #{i} ('{name}'): no voltage column and no 'loading' table; "
                                f"give one of them", "traces")
         traces.append(tr)
     return tuple(traces)

@@ -207,6 +207,16 @@ def _parse_cell(text: str, path, row, line, column) -> float:
     return val
 
 
+
+def _check_channel_strings(mapping: dict, allowed, key: str, what: str, path, unknown) -> None:
+    """Every key of ``mapping`` (channel -> string) is in ``allowed`` (else DataError
+    ``unknown(channel)``) and maps to a string (else DataError naming ``what``)."""
+    for ch, v in mapping.items():
+        if ch not in allowed:
+            raise DataError(unknown(ch), file=path, key=f"{key}.{ch}")
+        if not isinstance(v, str):
+            raise DataError(f"{what} for channel '{ch}' must be a string, got {v!r}", file=path, key=f"{key}.{ch}")
+
 def load_trace_csv(
     path,
     columns: Mapping[str, str] | None = None,
@@ -270,20 +280,13 @@ def load_trace_csv(
                 f"{fmt_list(header)}; channels: {fmt_list(CHANNELS)}", file=path, row=1, line=hline)
     columns = dict(columns)
     units = dict(units or {})
-    for ch in columns:
-        if ch not in CHANNELS:
-            raise DataError(f"unknown channel '{ch}'{suggest(ch, CHANNELS)}; known channels: "
-                            f"{fmt_list(CHANNELS)}", file=path, key=f"columns.{ch}")
-        if not isinstance(columns[ch], str):
-            raise DataError(f"column name for channel '{ch}' must be a string, got {columns[ch]!r}",
-                            file=path, key=f"columns.{ch}")
+    _check_channel_strings(columns, CHANNELS, "columns", "column name", path,
+                           lambda ch: f"unknown channel '{ch}'{suggest(ch, CHANNELS)}; known channels: "
+                                      f"{fmt_list(CHANNELS)}")
+    _check_channel_strings(units, columns, "units", "unit", path,
+                           lambda ch: f"unit given for channel '{ch}', which is not among the mapped columns "
+                                      f"({fmt_list(columns)})")
     for ch in units:
-        if ch not in columns:
-            raise DataError(f"unit given for channel '{ch}', which is not among the mapped columns "
-                            f"({fmt_list(columns)})", file=path, key=f"units.{ch}")
-        if not isinstance(units[ch], str):
-            raise DataError(f"unit for channel '{ch}' must be a string, got {units[ch]!r}",
-                            file=path, key=f"units.{ch}")
         to_si([], units[ch], ch, file=path)  # validates the unit
     missing_ch = [ch for ch in required if ch not in columns]
     if missing_ch:

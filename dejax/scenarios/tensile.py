@@ -39,18 +39,8 @@ class _UniaxialOutputs(eqx.Module):
         }
 
 
-def uniaxial(
-    stretch,
-    material: Material,
-    voltage=None,
-    lx: float = 1e-3,
-    ly: float = 1e-3,
-    lz: float = 1e-3,
-    shape=(1, 1, 1),
-    gauss_order: int = 3,
-    damping: float = 0.0,
-    volumetric: str = "mixed",
-) -> Problem:
+def uniaxial(stretch, material: Material, voltage=None, lx: float = 1e-3, ly: float = 1e-3, lz: float = 1e-3,
+             shape=(1, 1, 1), gauss_order: int = 3, damping: float = 0.0, volumetric: str = "mixed") -> Problem:
     """Stretch-controlled uniaxial tension of a film (a material test).
 
     Block [0, lx] x [0, ly] x [0, lz] (m) with symmetry planes x = 0, y = 0, z = 0; the

@@ -31,20 +31,9 @@ class _TubeOutputs(eqx.Module):
         }
 
 
-def rolled(
-    model: str | Material = "IV",
-    freq: float = 30.0,
-    phi_max: float = 50e3,
-    h: float = 2e-3,
-    r: float = 2e-3,
-    L: float = 8e-3,
-    shape=(12, 20, 4),
-    gauss_order: int = 3,
-    damping: float = 0.0,
-    point: str = "P",
-    voltage=None,
-    volumetric: str = "mixed",
-) -> Problem:
+def rolled(model: str | Material = "IV", freq: float = 30.0, phi_max: float = 50e3, h: float = 2e-3, r: float = 2e-3,
+           L: float = 8e-3, shape=(12, 20, 4), gauss_order: int = 3, damping: float = 0.0, point: str = "P",
+           voltage=None, volumetric: str = "mixed") -> Problem:
     """Rolled (tubular) DEA of paper Sec. 6.
 
     Hollow cylinder along x in [-L, 0] (m), inner radius r, wall h; voltage across the
