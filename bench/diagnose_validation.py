@@ -10,8 +10,9 @@ added (the top-ranked one if it is a true one), and the control's verdict.
 
 small: one (large) magnitude per effect + the two-effect cases + the control;
 full: two magnitudes. Not in the truth set: added_mass (inertia is invisible at
-1-10 Hz for a 1 mm block) and electrostriction (I1bar - 3 ~ 1e-3 at these strains:
-a physically sized eps_a changes the output by < 1e-4 relative); both stay candidates.
+1-10 Hz for a 1 mm block; it stays a candidate). Electrostriction is in it through its
+first-order coefficient eps_b (its second-order eps_a: I1bar - 3 ~ 1e-3 at these strains,
+a physically sized eps_a changes the output by < 1e-4 relative).
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ TRUTHS = {  # effect: (small, large)
     "voltage_lag": ({"tau": 0.01}, {"tau": 0.03}),
     "leakage": ({"frac": 0.15, "tau": 1.0}, {"frac": 0.35, "tau": 1.0}),
     "electrode_stiffness": ({"rel": 0.1}, {"rel": 0.3}),
+    "electrostriction": ({"eps_b": -0.1}, {"eps_b": -0.3}),
     "prestress": ({"s0": 5e3}, {"s0": 15e3}),
     "sensor_offset": ({"c": 5e-4}, {"c": 2e-3}),
     "sensor_drift": ({"rate": 2e-4}, {"rate": 1e-3}),

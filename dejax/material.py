@@ -52,8 +52,12 @@ class Material(eqx.Module):
       mu, K, Jm, eta: per viscous unit shear modulus (Pa), bulk modulus (Pa),
         Gent limit (-), viscosity (Pa s); the small-strain relaxation time of a unit
         under this flow rule is eta / (2 mu).
-      eps_a: electrostriction coefficient (-), default 0 (the paper's model): the
-        permittivity is eps (1 + eps_a (I1bar - 3)), stretch dependent.
+      eps_a, eps_b: electrostriction coefficients (-), default 0 (the paper's model): the
+        permittivity is eps (1 + eps_a (I1bar - 3) + eps_b (lambda_E - 1)), lambda_E the
+        stretch of the material line along the nominal field, sqrt(E.C E / E.E). eps_b is the
+        first-order dependence measured on acrylic films (permittivity falling as the film is
+        stretched in plane, i.e. thinned along the field: Wissler and Mazza 2007); I1bar - 3 is
+        of second order in the strain.
     """
 
     mu_inf: jax.Array
@@ -66,8 +70,9 @@ class Material(eqx.Module):
     Jm: jax.Array
     eta: jax.Array
     eps_a: jax.Array
+    eps_b: jax.Array
 
-    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=(), eps_a=0.0):
+    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=(), eps_a=0.0, eps_b=0.0):
         self.mu_inf = jnp.asarray(mu_inf, dtype=float)
         self.K_inf = jnp.asarray(K_inf, dtype=float)
         self.Jm_inf = jnp.asarray(Jm_inf, dtype=float)
@@ -85,6 +90,7 @@ class Material(eqx.Module):
             arrs.append(a)
         self.mu, self.K, self.Jm, self.eta = arrs
         self.eps_a = jnp.asarray(eps_a, dtype=float)
+        self.eps_b = jnp.asarray(eps_b, dtype=float)
 
     @property
     def n_units(self) -> int:
@@ -140,13 +146,16 @@ def equilibrium_energy(F, E, mat: Material, bulk: bool = True):
     """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3.
 
     ``bulk=False`` leaves out the penalty K_inf/2 (J - 1)^2 (the mixed form supplies the
-    volumetric part itself, see ``mixed_free_energy``). With ``mat.eps_a != 0`` the
-    permittivity depends on stretch (electrostriction, an extension beyond the paper used
-    by the sim-to-real diagnosis)."""
+    volumetric part itself, see ``mixed_free_energy``). With ``mat.eps_a`` or ``mat.eps_b``
+    non-zero the permittivity depends on stretch (electrostriction, see ``Material``; an
+    extension beyond the paper used by the sim-to-real diagnosis)."""
     C = gram3(F)
     J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
-    eps = mat.eps * (1.0 + mat.eps_a * (I1bar - 3.0))
+    EE = jnp.dot(E, E)
+    safe = jnp.where(EE > 0.0, EE, 1.0)
+    lam_E = jnp.sqrt(jnp.where(EE > 0.0, jnp.dot(E, C @ E) / safe, 1.0))  # 1 without field
+    eps = mat.eps * (1.0 + mat.eps_a * (I1bar - 3.0) + mat.eps_b * (lam_E - 1.0))
     elec = -0.5 * eps * J * jnp.sum(E[:, None] * inv3(C) * E[None, :])
     psi = gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + elec
     return psi + 0.5 * mat.K_inf * (J - 1.0) ** 2 if bulk else psi

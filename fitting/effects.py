@@ -24,7 +24,7 @@ creep               mu (Pa), tau (s) ~ 0.5-50 s                 extra slow Gent 
 hysteresis          mu (Pa), tau (s) ~ 1e-3-0.5 s               extra fast Gent viscous unit
 voltage_lag         tau (s)                                     first-order RC filter command->electrode
 leakage             frac (-), tau (s)                           field screening by leakage/space charge
-electrostriction    eps_a (-)                                   Material.eps_a: eps(1+eps_a(I1bar-3))
+electrostriction    eps_b (-), eps_a (-)                        eps(1 + eps_b(lambda_E - 1) + eps_a(I1bar - 3))
 electrode_stiffness rel (-)                                     mu_inf -> mu_inf (1 + rel)
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
 prestress           s0 (Pa)                                     equibiaxial in-plane dead load
@@ -249,8 +249,9 @@ def _leak(p, v):
                                                    jnp.asarray(v["tau"], dtype=float))))
 
 
-def _eps_a(p, v):
-    mat = eqx.tree_at(lambda m: m.eps_a, p.model.material, jnp.asarray(v["eps_a"], dtype=float))
+def _electrostriction(p, v):
+    mat = eqx.tree_at(lambda m: (m.eps_b, m.eps_a), p.model.material,
+                      (jnp.asarray(v["eps_b"], dtype=float), jnp.asarray(v["eps_a"], dtype=float)))
     return p.replace(model=eqx.tree_at(lambda md: md.material, p.model, mat))
 
 
@@ -304,8 +305,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("leakage", (Param("frac", 0.0, (0.0, 0.6), 0.0, doc="screened fraction of the field at steady state"),
                        Param("tau", 2.0, (0.05, 50.0), 2.0, "log", "s", "charging time of the screening layer")),
            _leak, "leakage current / charge injection: effective field decays under constant voltage"),
-    Effect("electrostriction", (Param("eps_a", 0.0, (-0.3, 0.3), 0.0, doc="eps(1 + eps_a (I1bar - 3))"),),
-           _eps_a, "stretch-dependent permittivity (Material.eps_a)"),
+    Effect("electrostriction", (Param("eps_b", 0.0, (-0.5, 0.5), 0.0,
+                                      doc="first order: eps(1 + eps_b (lambda_E - 1)), lambda_E the stretch along the field"),
+                                Param("eps_a", 0.0, (-0.3, 0.3), 0.0, doc="second order: eps(1 + eps_a (I1bar - 3))")),
+           _electrostriction, "stretch-dependent permittivity (Material.eps_b, first order in the stretch along the "
+           "field, as measured on acrylic films; Material.eps_a, through I1bar - 3)"),
     Effect("electrode_stiffness", (Param("rel", 0.0, (-0.5, 2.0), 0.0, doc="mu_layer t_layer / (mu_inf h)"),),
            _stiff, "stiffness of electrodes/fixtures: a parallel neo-Hookean layer, lumped into mu_inf "
            "(approximation: the layer shares the film's Gent limit Jm_inf)"),
@@ -361,7 +365,7 @@ def augment_material(material: Material, n_extra: int = 2, Jm: float = 5.0) -> M
                     mu=list(np.asarray(material.mu)) + [mu0] * n_extra,
                     K=list(np.asarray(material.K)) + [ratio * mu0] * n_extra,
                     Jm=list(np.asarray(material.Jm)) + [Jm] * n_extra,
-                    eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a)
+                    eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a, eps_b=material.eps_b)
 
 
 def make_pieces(problem, face_area: float | None = None) -> Pieces:

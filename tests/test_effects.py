@@ -61,14 +61,14 @@ def test_augment_and_apply_leaves():
     m = p.model.material
     assert m.n_units == 3 and float(m.mu[1]) == pytest.approx(67e3 * fx.DORMANT)
     q = fx.apply_effects(p, {"creep": {"mu": 1e4, "tau": 4.0}, "hysteresis": {"mu": 2e4, "tau": 0.02},
-                             "electrostriction": {"eps_a": 0.1}, "electrode_stiffness": {"rel": 0.25},
+                             "electrostriction": {"eps_a": 0.1, "eps_b": -0.2}, "electrode_stiffness": {"rel": 0.25},
                              "added_mass": {"rel": 1.0}, "voltage_lag": {"tau": 0.01},
                              "leakage": {"frac": 0.2, "tau": 3.0}, "sensor_offset": {"c": 0.1}})
     mm = q.model.material
     assert float(mm.mu[1]) == pytest.approx(1e4) and float(mm.eta[1]) == pytest.approx(2 * 1e4 * 4.0)
     assert float(mm.mu[2]) == pytest.approx(2e4) and float(mm.eta[2]) == pytest.approx(2 * 2e4 * 0.02)
     assert float(mm.mu[0]) == pytest.approx(67e3)  # baseline unit untouched
-    assert float(mm.eps_a) == pytest.approx(0.1)
+    assert float(mm.eps_a) == pytest.approx(0.1) and float(mm.eps_b) == pytest.approx(-0.2)
     assert float(mm.mu_inf) == pytest.approx(67e3 * 1.25)
     np.testing.assert_allclose(q.model.mass_e, 2.0 * p.model.mass_e)
     v = q.loading.voltages[0]

@@ -306,6 +306,41 @@ def test_electrostatic_stress_closed_form():
     assert np.max(np.abs(sigma_e - EPS * (np.outer(e, e) - 0.5 * (e @ e) * np.eye(3)))) <= 1e-7 * np.max(np.abs(ref))
 
 
+def test_first_order_electrostriction_closed_form():
+    """eps_b: permittivity eps (1 + eps_b (lambda_E - 1)) with lambda_E the stretch along the
+    nominal field. F = diag(a, b, c), E along z: psi_e = -eps (1 + eps_b (c - 1))/2 abc E^2/c^2;
+    along x the x stretch a enters instead; at E = 0 the energy and its derivative are finite
+    and equal to the field-free ones; the change is first order in c - 1 (eps_a's I1bar - 3 is
+    second order)."""
+    from dejax.material import Material, equilibrium_energy
+
+    base = dict(mu_inf=60e3, K_inf=1e9, Jm_inf=20.0, eps=4e-11, rho=1e3)
+    a, b, c, E0 = 1.3, 0.9, 0.8, 3e7
+    F = jnp.diag(jnp.array([a, b, c]))
+    for eb in (0.0, 0.3, -0.4):
+        mat = Material(**base, eps_b=eb)
+        for axis, lam in ((2, c), (0, a)):
+            E = jnp.zeros(3).at[axis].set(E0)
+            psi_e = float(equilibrium_energy(F, E, mat) - equilibrium_energy(F, jnp.zeros(3), mat))
+            ref = -0.5 * 4e-11 * (1 + eb * (lam - 1)) * a * b * c * E0 ** 2 / lam ** 2
+            assert psi_e == pytest.approx(ref, rel=1e-12)
+        g = jax.grad(equilibrium_energy)(F, jnp.zeros(3), mat)
+        g0 = jax.grad(equilibrium_energy)(F, jnp.zeros(3), Material(**base))
+        assert np.all(np.isfinite(np.asarray(g))) and np.allclose(np.asarray(g), np.asarray(g0), rtol=1e-14, atol=0)
+    # first vs second order: isochoric stretch along z by 1 + d
+    E = jnp.array([0.0, 0.0, E0])
+    for name in ("eps_b", "eps_a"):
+        mat = Material(**base, **{name: 0.3})
+        ref_mat = Material(**base)
+        rel = []
+        for d in (1e-3, 2e-3):
+            Fd = jnp.diag(jnp.array([(1 + d) ** -0.5, (1 + d) ** -0.5, 1 + d]))
+            pe = lambda m: float(equilibrium_energy(Fd, E, m) - equilibrium_energy(Fd, jnp.zeros(3), m))
+            rel.append(abs(pe(mat) / pe(ref_mat) - 1))
+        order = np.log(rel[1] / rel[0]) / np.log(2.0)
+        assert order == pytest.approx(1.0 if name == "eps_b" else 2.0, abs=0.05), (name, order)
+
+
 @pytest.mark.parametrize("lam,xi,E0", [(1.03, 1.01, 2e7), (1.2, 0.95, 5e7), (0.9, 1.1, 0.0)])
 def test_equal_biaxial_block_notes(lam, xi, E0):
     """docs/paper-notes.md block: F = diag(lam, lam, lam^-2), Cv = diag(xi^2, xi^2, xi^-4), E along z.
