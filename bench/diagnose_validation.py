@@ -31,6 +31,7 @@ TRUTHS = {  # effect: (small, large)
     "leakage": ({"frac": 0.15, "tau": 1.0}, {"frac": 0.35, "tau": 1.0}),
     "electrode_stiffness": ({"rel": 0.1}, {"rel": 0.3}),
     "electrostriction": ({"eps_b": -0.1}, {"eps_b": -0.3}),
+    "mu_drift": ({"rate": 0.005}, {"rate": 0.02}),
     "prestress": ({"s0": 5e3}, {"s0": 15e3}),
     "sensor_offset": ({"c": 5e-4}, {"c": 2e-3}),
     "sensor_drift": ({"rate": 2e-4}, {"rate": 1e-3}),

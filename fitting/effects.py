@@ -24,6 +24,7 @@ creep               mu (Pa), tau (s) ~ 0.5-50 s                 extra slow Gent 
 hysteresis          mu (Pa), tau (s) ~ 1e-3-0.5 s               extra fast Gent viscous unit
 voltage_lag         tau (s)                                     first-order RC filter command->electrode
 leakage             frac (-), tau (s)                           field screening by leakage/space charge
+mu_drift            rate (1/s)                                  moduli x (1 + rate t) (temperature drift)
 electrostriction    eps_b (-), eps_a (-)                        eps(1 + eps_b(lambda_E - 1) + eps_a(I1bar - 3))
 electrode_stiffness rel (-)                                     mu_inf -> mu_inf (1 + rel)
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
@@ -90,9 +91,13 @@ class EffectiveVoltage(eqx.Module):
     """Electrode voltage seen by the film, from the commanded history ``base``:
 
         v_e = LP_lag(phi)                         (RC lag of amplifier + electrode resistance)
-        phi_eff = v_e - frac * LP_leak(phi)       (field screening by leakage / injected charge)
+        phi_eff = (v_e - frac * LP_leak(phi)) / sqrt(1 + mu_drift t)
 
-    lag = 0 and frac = 0 (the defaults) give phi_eff = phi. The leakage term models a
+    lag = 0, frac = 0 and mu_drift = 0 (the defaults) give phi_eff = phi. The last factor
+    realises a temperature drift of the moduli, mu(t) = mu (1 + mu_drift t) for every
+    modulus of the film: the elastic balance mu f(stretch) = eps E^2 g(stretch) is the same
+    with the moduli scaled by s and the field by 1/sqrt(s) (exact when inertia is negligible;
+    the viscous units' relaxation times eta/(2 mu) are held, i.e. eta drifts with mu). The leakage term models a
     film whose leakage current charges a screening (space-charge / contact) layer with
     time constant tau_leak: under a constant command phi_eff decays from phi to
     (1 - frac) phi as 1 - frac (1 - exp(-t/tau_leak)). (Approximation: the leak filter acts
@@ -102,16 +107,19 @@ class EffectiveVoltage(eqx.Module):
     lag: jax.Array
     frac: jax.Array
     tau_leak: jax.Array
+    mu_drift: jax.Array
 
-    def __init__(self, base, lag=0.0, frac=0.0, tau_leak=1.0):
+    def __init__(self, base, lag=0.0, frac=0.0, tau_leak=1.0, mu_drift=0.0):
         self.base = base
         self.lag = jnp.asarray(lag, dtype=float)
         self.frac = jnp.asarray(frac, dtype=float)
         self.tau_leak = jnp.asarray(tau_leak, dtype=float)
+        self.mu_drift = jnp.asarray(mu_drift, dtype=float)
 
     def __call__(self, t):
         ve = lowpass(self.base, self.lag, t)
-        return ve - self.frac * lowpass(self.base, self.tau_leak, t)
+        scale = jax.lax.rsqrt(jnp.maximum(1.0 + self.mu_drift * jnp.asarray(t, dtype=float), 1e-6))
+        return (ve - self.frac * lowpass(self.base, self.tau_leak, t)) * scale
 
 
 # ----------------------------------------------------------------------------- pieces
@@ -249,6 +257,10 @@ def _leak(p, v):
                                                    jnp.asarray(v["tau"], dtype=float))))
 
 
+def _mu_drift(p, v):
+    return _map_voltages(p, lambda h: eqx.tree_at(lambda e: e.mu_drift, h, jnp.asarray(v["rate"], dtype=float)))
+
+
 def _electrostriction(p, v):
     mat = eqx.tree_at(lambda m: (m.eps_b, m.eps_a), p.model.material,
                       (jnp.asarray(v["eps_b"], dtype=float), jnp.asarray(v["eps_a"], dtype=float)))
@@ -310,6 +322,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
                                 Param("eps_a", 0.0, (-0.3, 0.3), 0.0, doc="second order: eps(1 + eps_a (I1bar - 3))")),
            _electrostriction, "stretch-dependent permittivity (Material.eps_b, first order in the stretch along the "
            "field, as measured on acrylic films; Material.eps_a, through I1bar - 3)"),
+    Effect("mu_drift", (Param("rate", 0.0, (-0.05, 0.05), 0.0, unit="1/s", doc="mu(t) = mu (1 + rate t)"),),
+           _mu_drift, "temperature drift of the moduli over the test (film warming by dissipation or the room): "
+           "every modulus scales by 1 + rate t, realised as the equivalent field scaling (inertia neglected)"),
     Effect("electrode_stiffness", (Param("rel", 0.0, (-0.5, 2.0), 0.0, doc="mu_layer t_layer / (mu_inf h)"),),
            _stiff, "stiffness of electrodes/fixtures: a parallel neo-Hookean layer, lumped into mu_inf "
            "(approximation: the layer shares the film's Gent limit Jm_inf)"),

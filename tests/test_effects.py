@@ -123,3 +123,21 @@ def test_normalized_parameters():
     v = fx.values_at(["leakage", "sensor_offset"], [0.5, 0.0, 1.0], fixed={"voltage_lag": {"tau": 0.01}})
     assert v["leakage"] == pytest.approx({"frac": 0.3, "tau": 0.05}, rel=1e-14)
     assert (v["sensor_offset"], v["voltage_lag"], len(v)) == ({"c": 1.0}, {"tau": 0.01}, 3)
+
+
+def test_mu_drift_is_the_equivalent_field_scaling():
+    """mu_drift: phi_eff = phi / sqrt(1 + rate t); and that is the moduli drift it stands for:
+    the closed-form Gent equilibrium of the block with mu x s equals the one with phi / sqrt(s)."""
+    from dejax.verification import models
+
+    p = fx.apply_effects(_pieces(), {"mu_drift": {"rate": 0.02}})
+    v = p.loading.voltages[0]
+    t = jnp.array([0.0, 0.3, 1.7])
+    base = loads.Sine(12e3, 2.0)
+    np.testing.assert_allclose(np.asarray(v(t)), np.asarray(base(t)) / np.sqrt(1 + 0.02 * np.asarray(t)), rtol=1e-12)
+    s = 1.3
+    for phi in (6e3, 12e3):
+        a = models.gent_equibiaxial_stretch(phi / np.sqrt(s), 1e-3, 67e3, 15.0, 4e-11)
+        b = models.gent_equibiaxial_stretch(phi, 1e-3, 67e3 * s, 15.0, 4e-11)
+        assert a == pytest.approx(b, rel=1e-10) and a > 1.0
+    assert fx.get("mu_drift").off() == {"rate": 0.0}
