@@ -278,3 +278,16 @@ def test_uniaxial_voltage_viscous():
     )
     assert abs(l2[-1] - s) < 1e-9
     assert abs(P[-1] - P_ref) < 1e-8 * MU_INF
+
+
+def test_block_output_grid_with_a_remainder_at_an_output_time():
+    """3 Hz sine on 121 outputs over 1 s: a step clipped to an output time left a round-off
+    remainder below the former dtmin (1e-13 of the span) and the solve failed at t = 0.508 s;
+    a finer grid (241 outputs) gives the same stretch at the common times."""
+    import jax.numpy as jnp
+
+    phi = lambda s: 6e3 * (1 - jnp.cos(2 * np.pi * 3.0 * s))  # noqa: E731
+    args = (1e-3, 67e3, 15.0, 4e-11, [67e3], [5.0], [3000.0])
+    a = R.homogeneous_block_response(np.linspace(0, 1.0, 121), phi, *args)
+    b = R.homogeneous_block_response(np.linspace(0, 1.0, 241), phi, *args)
+    np.testing.assert_allclose(a, b[::2], rtol=1e-9)

@@ -347,9 +347,11 @@ def _diffeqsolve(field, y0, t0, ts, args, solver, rtol, atol, max_steps):
         # Steps land on the output times: dense interpolation of a stiff (fast-relaxing) unit
         # between large implicit steps is far less accurate than the step end values.
         # dtmin: a state with no admissible equilibrium (NaN rates) fails fast instead of
-        # exhausting max_steps with ever smaller rejected steps.
+        # exhausting max_steps with ever smaller rejected steps. It sits at round-off (1e-16 of
+        # the span): a step clipped to an output time can leave a remainder of a few 1e-16 s
+        # before that time (seen at 3 Hz, 120 outputs per second: 1e-13 made the solve fail).
         stepsize_controller=diffrax.PIDController(
-            rtol=rtol, atol=atol, step_ts=ts, dtmin=1e-13 * (ts[-1] - t0), force_dtmin=False
+            rtol=rtol, atol=atol, step_ts=ts, dtmin=1e-16 * (ts[-1] - t0), force_dtmin=False
         ),
         max_steps=max_steps,
         throw=False,
@@ -403,7 +405,12 @@ def _block_resid(lam, xi, t, args):
     Hs = 1.0 - (2.0 * lam**2 * xi**-2 + lam**-4 * xi**4 - 3.0) / p["Jm"]
     r = (lam**-2 - lam**-8) / Hinf
     r = r + jnp.sum(p["mu"] / p["mu_inf"] * (lam**-2 * xi**-2 - lam**-8 * xi**4) / Hs)
-    r = r - p["eps"] / p["mu_inf"] * (phi / p["L"]) ** 2
+    # electrostatic term, with the first-order electrostriction eps (1 + b (lam_z - 1)), lam_z = lam^-2:
+    # d/dlam [-eps/2 (1 + b (lam^-2 - 1)) E^2 lam^4] / (2 lam^3) = -eps E^2 (1 - b + b lam^-2 / 2)
+    b = p["eps_b"]
+    r = r - p["eps"] / p["mu_inf"] * (phi / p["L"]) ** 2 * (1.0 - b + 0.5 * b * lam**-2)
+    # equal-biaxial in-plane dead load (nominal stress s on the lateral faces): work 2 s (lam - 1)
+    r = r - p["s_pre"] / p["mu_inf"] * lam**-3
     ok = (lam > 0) & (Hinf > 0) & jnp.all(Hs > 0)
     return _nan_unless(ok, r)
 
@@ -438,7 +445,7 @@ def _block_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
 
 def homogeneous_block_response(
     t, phi_fn, L, mu_inf, Jm_inf, eps, mu, Jm, eta, rtol=1e-10, atol=1e-12, *, t0=0.0, solver=None,
-    max_steps=1_000_000, return_xi=False,
+    max_steps=1_000_000, return_xi=False, eps_b=0.0, prestress=0.0,
 ):
     r"""Equal-biaxial stretch lam(t) of the incompressible viscoelastic Gent block (N >= 0 units).
 
@@ -447,7 +454,8 @@ def homogeneous_block_response(
     docstring)::
 
         equilibrium:  mu_inf (lam^-2 - lam^-8)/H_inf
-                      + sum_s mu_s (lam^-2 xi_s^-2 - lam^-8 xi_s^4)/H_s = eps (phi/L)^2
+                      + sum_s mu_s (lam^-2 xi_s^-2 - lam^-8 xi_s^4)/H_s
+                      = eps (phi/L)^2 (1 - b + b lam^-2/2) + s lam^-3
         evolution:    dxi_s/dt = mu_s/(3 eta_s H_s) (lam^2 xi_s^-1 - lam^-4 xi_s^5)
         H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
         H_s   = 1 - (2 lam^2 xi_s^-2 + lam^-4 xi_s^4 - 3)/Jm_s
@@ -479,6 +487,9 @@ def homogeneous_block_response(
         scalars or length-N sequences (N = 0 allowed: pass ``()``).
       rtol, atol: tolerances of the adaptive step-size controller (on xi).
       return_xi: also return xi(t) (len(t), N).
+      eps_b: first-order electrostriction b (-): permittivity eps (1 + b (lam_z - 1)) with
+        lam_z = lam^-2 the stretch along the field (default 0, the paper's model).
+      prestress: nominal in-plane dead-load stress s (Pa) on the four lateral faces (default 0).
     Returns:
       lam(t) as a numpy array (and xi(t) if requested).
     Raises:
@@ -489,7 +500,8 @@ def homogeneous_block_response(
     n = mu.size
     ts = _times(t, t0)
     mup, Jmp, etap = _padded(mu, Jm, eta)
-    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mup, Jm=Jmp, eta=etap).items()}
+    p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mup, Jm=Jmp, eta=etap,
+                                                   eps_b=eps_b, s_pre=prestress).items()}
     args = (p, phi_fn)
     integrate = bool(ts[-1] > t0)  # N = 0 runs through the same (padded, inert) path: one compilation
     solver = solver or diffrax.Tsit5()
