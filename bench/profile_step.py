@@ -48,7 +48,7 @@ def main():
     state = it.simulate(m, load, times, p.output_fn, scheme, solver=solver).check().final
     t1 = state.t + dt
     ctx = it._StepContext(state=state, t1=jnp.asarray(t1), phi1=load.phi(t1), u1=load.u(t1) if m.prescribed_dirs.shape[0] else jnp.zeros(0),
-                          f_ext=mdl.gravity_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
+                          f_ext=mdl.external_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
     z = scheme.predict(state, dt, "velocity")[m.structure.free]
     pr = state.p
     print(f"mesh {a.mesh}: {m.dV.shape[0]} elements, {m.dV.size} Gauss points, {m.structure.n_free} unknowns, "

@@ -74,7 +74,7 @@ def main():
     carry, _ = runs["dejax"](m, load, carry, first, active)  # a loaded state
     state = carry.state
     ctx = it._StepContext(state=state, t1=state.t + dt, phi1=load.phi(state.t + dt), u1=jnp.zeros(0),
-                          f_ext=mdl.gravity_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
+                          f_ext=mdl.external_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
     z, pr = state.q[m.structure.free], state.p
     print(f"tube {a.mesh}: {m.structure.n_free} unknowns, {m.dV.size} Gauss points; variants: "
           + ", ".join(f"{k} ({v[KEY] or 'none'})" for k, v in VARIANTS.items()))

@@ -146,6 +146,31 @@ def element_reference_data(
     return N, G, detJ * jnp.asarray(weights)
 
 
+def face_load(X_e: jax.Array, dXdxi_e: jax.Array, axis: int, side: int, traction, order: int = 3) -> jax.Array:
+    """(32, 3) consistent nodal load ``int_face N t^T dA`` of a uniform dead traction.
+
+    Args:
+      X_e, dXdxi_e: the element's reference nodes (8, 3) and map derivatives (8, 3, 3) (m).
+      axis, side: the face xi_axis = side (side = -1 or +1).
+      traction: (3,) nominal traction (force per reference area, Pa), constant.
+      order: Gauss points per in-face direction.
+    """
+    A = slot_transform(dXdxi_e)
+    e0 = reference_element_coordinates(X_e)
+    p, w = np.polynomial.legendre.leggauss(int(order))
+    a, b = [k for k in range(3) if k != axis]
+    load = jnp.zeros((N_SLOTS, 3))
+    for i, pi in enumerate(p):
+        for j, pj in enumerate(p):
+            xi = np.zeros(3)
+            xi[axis], xi[a], xi[b] = side, pi, pj
+            N = A.T @ parametric_shape_functions(jnp.asarray(xi))
+            J0 = e0.T @ (A.T @ parametric_shape_gradients(jnp.asarray(xi)))  # (3, 3) dX/dxi
+            dA = jnp.linalg.norm(jnp.cross(J0[:, a], J0[:, b]))
+            load = load + w[i] * w[j] * dA * jnp.outer(N, jnp.asarray(traction, dtype=float))
+    return load
+
+
 def reference_element_coordinates(X_e: jax.Array) -> jax.Array:
     """(32, 3) reference coordinates of one element: positions and identity gradients."""
     eye = jnp.broadcast_to(jnp.eye(3), (X_e.shape[0], 3, 3))

@@ -308,7 +308,7 @@ def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0,
     phi = loading.phi(t0) if model.field_dirs.shape[0] else jnp.zeros(0)
     E = mdl.nominal_field(model, phi)
     f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0, p)
-    rhs = mdl.reduce(model, mdl.gravity_force(model) - f_int - model.damping * mdl.mass_apply(model, v))
+    rhs = mdl.reduce(model, mdl.external_force(model) - f_int - model.damping * mdl.mass_apply(model, v))
     qdd_f = initial_acceleration(model, rhs)
     qdd = mdl.expand(model, qdd_f)
     return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv, p=p, Cv_prev=Cv,
@@ -623,7 +623,7 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
             t1=t1,
             phi1=loading.phi(t1) if model.field_dirs.shape[0] else jnp.zeros(0),
             u1=loading.u(t1) if model.prescribed_dirs.shape[0] else jnp.zeros(0),
-            f_ext=mdl.gravity_force(model),
+            f_ext=mdl.external_force(model),
             flow=mdl.flow_step(model, state, h, scheme.flow_update),
         )
         q_pred = scheme.predict(state, h, opts.predictor)

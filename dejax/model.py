@@ -80,6 +80,7 @@ class Model(eqx.Module):
     material: Material
     damping: jax.Array  # c_d (1/s): C_d = c_d M
     gravity: jax.Array  # (3,) m/s^2
+    dead_load: jax.Array  # (n_dofs,) constant external generalized force (N), e.g. face_traction_load
     prescribed_dirs: jax.Array  # (n_motion_channels, n_constrained)
     _structure: Static = eqx.field(static=True)
 
@@ -165,7 +166,7 @@ def build_model(
     mass_e = jax.vmap(el.element_mass, in_axes=(0, 0, None))(Nm, dVm, material.rho)
     return Model(q0=mesh.reference_coordinates(), N=N, G=G, dV=dV, field_dirs=field_dirs, mass_e=mass_e,
                  material=material, damping=jnp.asarray(damping, dtype=float), gravity=jnp.asarray(gravity, dtype=float),
-                 prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
+                 dead_load=jnp.zeros(mesh.n_dofs), prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
 
 
 # ----------------------------------------------------------------------------- kinematics
@@ -400,14 +401,37 @@ def mass_elements(model: Model) -> jax.Array:
     return jnp.einsum("eab,ij->eaibj", model.mass_e, jnp.eye(3)).reshape(-1, 96, 96)
 
 
-def gravity_force(model: Model) -> jax.Array:
-    """(n_dofs,) generalized gravity force int rho N g dV = M (1 (x) g) summed over position slots.
+def external_force(model: Model) -> jax.Array:
+    """(n_dofs,) constant external generalized force: gravity int rho N g dV = M (1 (x) g)
+    summed over position slots, plus ``model.dead_load``.
 
     Uses the exact mass matrix: the position shape functions sum to 1 and the
     gradient functions to 0 within an element, so int rho N dV = Mc @ [1 on position slots]."""
     ones = jnp.zeros((model.mass_e.shape[0], 8, 4)).at[:, :, 0].set(1.0).reshape(-1, 32)
     fe = jnp.einsum("eab,eb,i->eai", model.mass_e, ones, model.gravity)
-    return scatter_slots(model, fe)
+    return scatter_slots(model, fe) + model.dead_load
+
+
+# the six faces of the 8-node element: (axis, side) -> its four corner nodes (element.NODE_CORNERS)
+_FACES = {(k, sd): tuple(int(i) for i in np.flatnonzero(el.NODE_CORNERS[:, k] == sd)) for k in range(3) for sd in (-1, 1)}
+
+
+def face_traction_load(mesh, node_set: str, traction, order: int = 3) -> jax.Array:
+    """(n_dofs,) consistent generalized force of a uniform dead nominal traction (Pa, (3,))
+    on every element face whose four corner nodes lie in ``mesh.nodes(node_set)``."""
+    on = np.zeros(mesh.n_nodes, dtype=bool)
+    on[mesh.nodes(node_set)] = True
+    f = jnp.zeros((mesh.n_nodes, 4, 3))
+    found = False
+    for e, nodes in enumerate(np.asarray(mesh.conn)):
+        for (axis, side), corners in _FACES.items():
+            if on[nodes[list(corners)]].all():
+                found = True
+                fe = el.face_load(mesh.X[nodes], mesh.dXdxi[e], axis, side, traction, order)
+                f = f.at[nodes].add(fe.reshape(8, 4, 3))
+    if not found:
+        raise ValueError(f"no element face lies in node set {node_set!r}")
+    return f.reshape(-1)
 
 
 def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:

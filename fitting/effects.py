@@ -28,7 +28,7 @@ mu_drift            rate (1/s)                                  moduli x (1 + ra
 electrostriction    eps_b (-), eps_a (-)                        eps(1 + eps_b(lambda_E - 1) + eps_a(I1bar - 3))
 electrode_stiffness rel (-)                                     mu_inf -> mu_inf (1 + rel)
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
-prestress           s0 (Pa)                                     equibiaxial in-plane dead load
+prestress           s0 (Pa)                                     dead traction s0 on the free lateral faces
 sensor_offset       c (output units)                            y -> y + c
 sensor_drift        rate (output units / s)                     y -> y + rate t
 sensor_latency      delay (s)                                   y(t) -> y(t - delay)
@@ -277,20 +277,13 @@ def _mass(p, v):
     return p.replace(model=eqx.tree_at(lambda md: md.mass_e, p.model, p.model.mass_e * (1.0 + v["rel"])))
 
 
-def _total_mass(model):
-    # sum over elements of 1^T Mc 1 on position slots (the rigid-translation mass)
-    ones = jnp.zeros((model.mass_e.shape[0], 8, 4)).at[:, :, 0].set(1.0).reshape(-1, 32)
-    return jnp.sum(jnp.einsum("eab,ea,eb->e", model.mass_e, ones, ones))
-
-
 def _prestress(p, v):
-    # a body force b (per unit mass) in +x and +y: resultant m b on the symmetry faces x = 0, y = 0,
-    # i.e. a nominal stress s0 = m b / A on them (A = face area) decreasing linearly to 0 at the
-    # free faces (mean pre-stress s0 / 2): a dead in-plane load on the film
-    area = p.info.get("face_area", 1e-6)
-    b = v["s0"] * area / _total_mass(p.model)
-    g = jnp.stack([b, b, jnp.zeros_like(b)])
-    return p.replace(model=eqx.tree_at(lambda md: md.gravity, p.model, g))
+    # an equal-biaxial dead nominal traction s0 on the free lateral faces (x = L and y = L of the
+    # block: the consistent face loads precomputed per unit stress in make_pieces)
+    unit = p.info.get("prestress_load")
+    if unit is None:
+        raise ValueError("the prestress effect needs a block (free faces x1 and y1): no unit face load in the pieces")
+    return p.replace(model=eqx.tree_at(lambda md: md.dead_load, p.model, v["s0"] * jnp.asarray(unit)))
 
 
 def _offset(p, v):
@@ -331,8 +324,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("added_mass", (Param("rel", 0.0, (0.0, 100.0), 0.0, doc="added mass / film mass"),),
            _mass, "mass of electrodes/fixtures, smeared over the film (mass matrix scaled; gravity, if any, too)"),
     Effect("prestress", (Param("s0", 0.0, (0.0, 1e5), 0.0, unit="Pa", doc="nominal in-plane dead-load stress"),),
-           _prestress, "equibiaxial in-plane dead load (pre-stress) applied as a uniform body force "
-           "(nominal stress s0 at the clamped faces, 0 at the free faces)"),
+           _prestress, "equibiaxial in-plane dead load (pre-stress): a nominal traction s0 on the free lateral "
+           "faces (the film pulled by its frame or weights)"),
     Effect("sensor_offset", (Param("c", 0.0, (-1.0, 1.0), 0.0, unit="output"),), _offset,
            "constant sensor offset", "sensor"),
     Effect("sensor_drift", (Param("rate", 0.0, (-1.0, 1.0), 0.0, unit="output/s"),), _drift,
@@ -383,7 +376,7 @@ def augment_material(material: Material, n_extra: int = 2, Jm: float = 5.0) -> M
                     eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a, eps_b=material.eps_b)
 
 
-def make_pieces(problem, face_area: float | None = None) -> Pieces:
+def make_pieces(problem) -> Pieces:
     """Pieces of a dejax ``Problem`` built with an ``augment_material`` material (two dormant
     units last): voltages wrapped in EffectiveVoltage, identity Sensor."""
     mat = problem.model.material
@@ -393,10 +386,13 @@ def make_pieces(problem, face_area: float | None = None) -> Pieces:
     ratio = float(mat.K[0] / mat.mu[0]) if n > 2 else 1e5
     volt = tuple(h if isinstance(h, EffectiveVoltage) else EffectiveVoltage(h) for h in problem.loading.voltages)
     loading = eqx.tree_at(lambda l: l.voltages, problem.loading, volt) if volt else problem.loading
-    if face_area is None:
-        L = problem.params.get("L", 1e-3)
-        face_area = float(L) ** 2
-    info = {"slot_creep": n - 2, "slot_hysteresis": n - 1, "K_over_mu": ratio, "face_area": face_area}
+    info = {"slot_creep": n - 2, "slot_hysteresis": n - 1, "K_over_mu": ratio}
+    mesh = problem.extras.get("mesh")
+    if mesh is not None and {"x1", "y1"} <= set(mesh.node_sets):
+        from dejax import model as mdl
+
+        info["prestress_load"] = np.asarray(mdl.face_traction_load(mesh, "x1", (1.0, 0.0, 0.0))
+                                            + mdl.face_traction_load(mesh, "y1", (0.0, 1.0, 0.0)))
     return Pieces(problem.model, loading, Sensor(), info)
 
 

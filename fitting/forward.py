@@ -45,10 +45,10 @@ class Forward:
     1e3 after the failure (a huge residual), not raised."""
 
     def __init__(self, problem, output: str = "lateral_stretch", rho_inf: float | None = None,
-                 newton: it.NewtonOptions = it.NewtonOptions(tol=1e-8, max_iter=60, reuse=True), face_area: float | None = None,
+                 newton: it.NewtonOptions = it.NewtonOptions(tol=1e-8, max_iter=60, reuse=True),
                  pad_to: int | None = None, transform=None):
         self.problem = problem
-        self.pieces0 = fx.make_pieces(problem, face_area)
+        self.pieces0 = fx.make_pieces(problem)
         self.output = output
         self.scheme = it.GeneralizedAlpha(problem.rho_inf if rho_inf is None else rho_inf)
         self.newton = newton
@@ -74,14 +74,28 @@ class Forward:
         n = len(trace.time) - 1
         pad = max(self.pad_to or n, n)
         self.n_sims += 1
+        state0 = self._preloaded_state(p.model, loading, float(trace.time[0]))
         return p.model, loading, pad, it.simulate(p.model, loading, trace.time, self.problem.output_fn, self.scheme,
-                                                  self.newton, pad_to=pad, control=None)  # fixed steps, as fits
+                                                  self.newton, state0=state0, pad_to=pad, control=None)  # fixed steps
+
+    def _preloaded_state(self, model, loading, t0: float):
+        """With a dead load (pre-stress), the state at t0 in static equilibrium under it, the
+        viscous units not yet relaxed (Cv = I: the load has just been applied, as in the
+        reduced model's truth), at rest; None (the reference state) without one."""
+        if not np.any(np.asarray(model.dead_load)):
+            return None
+        pre = it.simulate(model, loading, np.array([t0, t0 + 1e-9]), self.problem.output_fn, it.QuasiStatic(),
+                          self.newton, control=None)
+        st = pre.final  # its element pressures belong to the pre-load: keep them (at rest, t = t0)
+        z = jnp.zeros_like(st.q)
+        return eqx.tree_at(lambda s: (s.t, s.v, s.qdd, s.a), st, (jnp.asarray(t0, dtype=float), z, z, z))
 
     def _finish(self, effects: Mapping, trace: Trace, launched) -> np.ndarray:
         model, loading, pad, sol = launched
         if not sol.ok and self.newton.reuse and int(sol.status) == int(it.Status.NEWTON_FAILED):
             full = dataclasses.replace(self.newton, reuse=False)
-            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full, pad_to=pad,
+            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full,
+                              state0=self._preloaded_state(model, loading, float(trace.time[0])), pad_to=pad,
                               control=None)
             self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)

@@ -85,7 +85,7 @@ def test_prestress_resultant():
     q = fx.apply_effects(p, {"prestress": {"s0": 1e4}})
     from dejax import model as mdl
 
-    f = np.asarray(mdl.gravity_force(q.model)).reshape(-1, 4, 3)
+    f = np.asarray(mdl.external_force(q.model)).reshape(-1, 4, 3)
     assert f[:, 0, 0].sum() == pytest.approx(1e4 * 1e-6, rel=1e-9)
     assert f[:, 0, 1].sum() == pytest.approx(1e4 * 1e-6, rel=1e-9)
     assert abs(f[:, 0, 2].sum()) < 1e-15

@@ -393,3 +393,26 @@ def test_gauss_rule_rejects_bad_order():
     for bad in (0, -1, 2.5):
         with pytest.raises(ValueError):
             el.gauss_rule(bad)
+
+
+# --------------------------------------------------------------------------------------
+# Consistent face loads (dead tractions)
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("axis, side", [(0, 1), (1, -1), (2, 1)])
+def test_face_load_virtual_work_of_linear_fields(axis, side):
+    """f . dq = int_face t . du dA for every linear field du = H X + c (positions H X_a + c,
+    gradient slots the columns of H): the load is consistent, gradient slots included."""
+    dims = np.array([2e-3, 1e-3, 0.5e-3])
+    X = 0.5 * (CORNERS + 1.0) * dims
+    dXdxi = np.broadcast_to(0.5 * np.diag(dims), (8, 3, 3)).copy()
+    t = np.array([3e3, -1e3, 2e3])
+    f = np.asarray(el.face_load(jnp.asarray(X), jnp.asarray(dXdxi), axis, side, t))  # (32, 3)
+    rng = np.random.default_rng(axis)
+    a, b = [k for k in range(3) if k != axis]
+    area = dims[a] * dims[b]
+    centroid = 0.5 * dims.copy()
+    centroid[axis] = dims[axis] if side > 0 else 0.0
+    for _ in range(3):
+        H, c = rng.standard_normal((3, 3)), rng.standard_normal(3)
+        dq = np.concatenate([np.concatenate([(H @ x + c)[None], H.T], axis=0) for x in X])  # (32, 3): r, dr/dX_k
+        assert np.sum(f * dq) == pytest.approx(t @ (H @ centroid + c) * area, rel=1e-12)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import dejax  # noqa: F401  (float64)
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from dejax import constraints as cs
@@ -143,3 +144,29 @@ def test_cantilever_does_not_lock(n_thick):
     tip, ref = _cantilever(n_thick, "mixed")
     print(f"\nmixed, {n_thick} through the thickness: tip {tip:.4e} m, beam theory {ref:.4e} m, ratio {tip / ref:.4f}")
     assert tip == pytest.approx(ref, rel=0.03)
+
+
+def test_dead_face_traction_gives_the_energy_stationary_stretch():
+    """A 2 x 2 x 2 hyperelastic block pulled by a dead nominal traction s on its free faces
+    x = L and y = L (model.dead_load from face_traction_load, no voltage): the quasi-static
+    lateral stretch equals the stationary point of Gent energy - 2 s (lam - 1) per volume
+    with lam_z = lam^-2 (nearly incompressible: K/mu = 1e5), found by scipy."""
+    from scipy import optimize
+
+    from dejax import integrate as it
+    from dejax import loads
+    from dejax import scenarios as sc
+
+    s = 20e3
+    mat = sc.block_material(mu=[], K=[], Jm=[], eta=[])
+    prob = sc.block(shape=(2, 2, 2), material=mat, voltage=loads.Constant(0.0))
+    mesh = prob.extras["mesh"]
+    load = mdl.face_traction_load(mesh, "x1", (s, 0.0, 0.0)) + mdl.face_traction_load(mesh, "y1", (0.0, s, 0.0))
+    model = eqx.tree_at(lambda m: m.dead_load, prob.model, load)
+    sol = it.simulate(model, prob.loading, np.linspace(0.0, 1.0, 6), prob.output_fn, it.QuasiStatic()).check()
+    lam = float(sol.outputs["lateral_stretch"][-1])
+    mu, Jm = 67e3, 15.0
+    d_pot = lambda l: (-0.5 * mu * Jm * np.log(1 - (2 * (l + 1e-7) ** 2 + (l + 1e-7) ** -4 - 3) / Jm) - 2 * s * (l + 1e-7)
+                       + 0.5 * mu * Jm * np.log(1 - (2 * (l - 1e-7) ** 2 + (l - 1e-7) ** -4 - 3) / Jm) + 2 * s * (l - 1e-7)) / 2e-7
+    ref = optimize.brentq(d_pot, 1.0, 1.5, xtol=1e-14)
+    assert lam == pytest.approx(ref, rel=1e-5) and lam > 1.05

@@ -28,7 +28,7 @@ class _UniaxialOutputs(eqx.Module):
         phi = loading.phi(state.t) if loading.voltages else jnp.zeros(model.field_dirs.shape[0])
         E = mdl.nominal_field(model, phi)
         R = (mdl.mass_apply(model, state.qdd + model.damping * state.v) + mdl.internal_force_at(model, state.q, E, state.Cv, state.p)
-             - mdl.gravity_force(model))
+             - mdl.external_force(model))
         idx = 12 * jnp.asarray(self.face)
         top = 12 * jnp.asarray(self.top) + 2
         return {

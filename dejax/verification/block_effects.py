@@ -15,10 +15,8 @@ leakage              the screened field: phi_lag - frac * (the same filter with 
 mu_drift             every modulus x s(t) = 1 + rate t (eta alike): the reduced equilibrium
                      divided by mu_inf s(t) is the one at phi / sqrt(s(t))
 electrode_stiffness  mu_inf x (1 + rel)
-prestress            an equal-biaxial dead nominal stress on the lateral faces; the
-                     finite-element effect applies s0 at the clamped faces falling linearly
-                     to 0 (a body force), so the homogeneous truth uses its mean s0/2: a
-                     model-form difference the diagnosis must live with
+prestress            an equal-biaxial dead nominal stress s0 on the lateral faces, applied at
+                     t = 0 to the film at rest (the viscous units not yet relaxed)
 electrostriction     eps_b: permittivity eps (1 + eps_b (lam_z - 1)) in the reduced
                      equilibrium (``homogeneous_block_response(eps_b=...)``)
 sensor_offset        y + c
@@ -92,7 +90,7 @@ def block_response(t, phi_max: float, freq: float, effects: dict | None = None, 
     order = np.argsort(ts, kind="stable")
     lam_sorted = models.homogeneous_block_response(
         ts[order], phi_fn, block["L"], mu_inf, block["Jm_inf"], block["eps"], mu, Jm, eta,
-        eps_b=_value(effects, "electrostriction", "eps_b"), prestress=0.5 * _value(effects, "prestress", "s0"))
+        eps_b=_value(effects, "electrostriction", "eps_b"), prestress=_value(effects, "prestress", "s0"))
     lam = np.empty_like(lam_sorted)
     lam[order] = lam_sorted
     return lam + _value(effects, "sensor_offset", "c") + _value(effects, "sensor_drift", "rate") * (t - t[0])
