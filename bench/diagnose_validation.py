@@ -90,7 +90,7 @@ def reduced_traces(truth, noise, seed, n_cycles=3.0, samples_per_cycle=40, chann
 
 
 def run_case(args):
-    label, truth, seed, source, noise = args
+    label, truth, seed, source, noise, fit_top = args
     from fitting import diagnose as dg
     from fitting.gap import gap
 
@@ -108,7 +108,7 @@ def run_case(args):
         base = [tr.y for tr in reduced_traces({}, 0.0, seed)]
         resolve = float(np.sqrt(np.mean(np.concatenate([(a - b) ** 2 for a, b in zip(clean, base)])))) / noise
     t0 = time.time()
-    d = dg.diagnose(fwd, traces)
+    d = dg.diagnose(fwd, traces, fit_top=fit_top)
     top = d.ranking[0]["name"] if d.ranking else None
     ranked = [c["name"] for c in d.ranking]
     parts = lambda name: set(name.split("+"))  # noqa: E731  (a pair candidate is "a+b")
@@ -140,6 +140,7 @@ def main(argv=None):
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json", default=None)
     ap.add_argument("--only", default=None, help="comma-separated case labels (prefix match)")
+    ap.add_argument("--fit-top", type=int, default=3, help="candidates fitted after the screening (dejax diagnose --fit-top)")
     ap.add_argument("--truth", choices=["reduced", "forward"], default="reduced",
                     help="truth generator: the independent reduced block (default) or the forward code")
     a = ap.parse_args(argv)
@@ -150,7 +151,7 @@ def main(argv=None):
     noise = noise_sigma()
     print(f"truth: {a.truth}; noise sigma {noise:.3g} (stretch units, {100 * NOISE_REL:g} % of the 14 kV amplitude); "
           f"{len(cs)} cases", flush=True)
-    work = [(lab, tr, 1000 + i, a.truth, noise) for i, (lab, tr) in enumerate(cs)]
+    work = [(lab, tr, 1000 + i, a.truth, noise, a.fit_top) for i, (lab, tr) in enumerate(cs)]
     t0 = time.time()
     if a.jobs > 1:
         with mp.get_context("spawn").Pool(a.jobs) as pool:
