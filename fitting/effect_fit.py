@@ -26,8 +26,8 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
     effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
     Jacobian at the start and the solution, Broyden-updated between them (so the one
     compiled ``simulate`` is reused); others in ``fixed`` held. Starts from the better of
-    the off values and ``z0`` (e.g. the screening's linearized optimum), without ``z0``
-    of the off values and the effects' start values. At most ``max_iter`` evaluations
+    the off values, the effects' start values and ``z0`` (e.g. the screening's linearized
+    optimum). At most ``max_iter`` evaluations
     besides the Jacobians'; stops when an accepted step lowers the SSE by less than
     ``rtol`` (relative). Returns (values, stderr, sse, J)."""
     fixed = dict(fixed or {})
@@ -38,10 +38,11 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
     def resid(z):
         return resid_many([z])[0]
 
-    # starts: the off values (the baseline, cached) and z0 when given, else the effects'
-    # start values; keep the better
+    # starts: the off values (the baseline, cached), the effects' start values and z0 when
+    # given (the screening's linearized optimum: for a parameter entering nonlinearly, such as a
+    # relaxation time, it can lie in another basin); keep the best
     cands = [np.array([p.z_of(start.get(n, {}).get(p.name, getattr(p, src))) for n, p in plist])
-             for src in (("off",) if z0 is not None else ("off", "start"))]
+             for src in ("off", "start")]
     if z0 is not None:
         cands.append(np.clip(np.asarray(z0, dtype=float), 0.0, 1.0))
     best_z, best_sse = None, np.inf
