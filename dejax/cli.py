@@ -1,6 +1,6 @@
 """Command line: ``dejax run``, ``dejax verify``, ``dejax plot``, ``dejax sweep`` here, and the
 verbs registered by ``dejax.bench`` (bench) and ``fitting.cli`` (fit, sensitivity, diagnose):
-``verb_registrars``.
+``verb_registrars``; ``run experiment`` is registered by ``fitting.cli`` (``run_registrars``).
 
 Exit codes: 0 success, 1 simulation failure (reported with its time; ``run`` still writes
 the trajectory up to the last converged step, status = "failed"), 2 bad arguments or an
@@ -43,7 +43,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _common_solver_args(p, dt: float):
+def common_solver_args(p, dt: float):
     p.add_argument("--dt", type=positive("--dt"), default=dt,
                    help="time step (s); the run takes ceil(t_end / dt) equal steps, so the step used "
                         "(stored as dt) may be slightly smaller")
@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override mu_inf (Pa; default: the paper's 67e3)")
     b.add_argument("--eta", type=positive("--eta"), default=None,
                    help="override eta_1 (Pa s; default: the paper's 3000)")
-    _common_solver_args(b, dt=1e-3)
+    common_solver_args(b, dt=1e-3)
     b.set_defaults(run_scenario=_run_block)
 
     r = rsub.add_parser("rolled", help="rolled (tubular) DEA under the Eq. (42) sine voltage (paper Sec. 6)")
@@ -118,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--eta", default=None,
                    help="override the viscous eta_s, comma-separated (Pa s; default: the --model's)")
     r.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
-    _common_solver_args(r, dt=1e-4)
+    common_solver_args(r, dt=1e-4)
     r.set_defaults(run_scenario=_run_rolled)
 
     t = rsub.add_parser("torsional", help="twisted torsional strip, phibar ramp (paper Sec. 5)")
@@ -128,23 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--viscous", action="store_true", help="add the paper's viscous unit")
     t.add_argument("--mesh", type=mesh_shape, default=(48, 8, 2), help="length x width x thickness elements")
     t.add_argument("--solver", default="auto", choices=("auto", "dense", "sparse", "pardiso"), help="linear solver")
-    _common_solver_args(t, dt=1e-2)
+    common_solver_args(t, dt=1e-2)
     t.set_defaults(run_scenario=_run_torsional)
 
-    e = rsub.add_parser("experiment", help="an experiment file (TOML + CSV, e.g. dejax fit's fitted.toml) under "
-                                           "one trace's loading; short form: dejax run FILE.toml",
-                        description="Simulate an experiment file's scenario with its material and geometry under "
-                                    "the loading of one of its traces (its voltage column, else its loading table; "
-                                    "uniaxial: its stretch), from 0 to the trace's last time ([solver] t_end if "
-                                    "given). --dt, --dt-min, --rho-inf, --damping, --gauss and --newton-tol "
-                                    "default to the file's [solver] (else dt = the trace's span / 200, the "
-                                    "defaults below). 'dejax run FILE.toml ...' is short for 'dejax run "
-                                    "experiment FILE.toml ...'.")
-    e.add_argument("experiment", help="experiment TOML file (docs/experiment-format.md)")
-    e.add_argument("--trace", default=None, help="name of the trace whose loading drives the run (default: the "
-                                                 "first [[traces]])")
-    _common_solver_args(e, dt=None)
-    e.set_defaults(run_scenario=_run_experiment, rho_inf=None, damping=None, newton_tol=None, dt_min=None)
+    for register in run_registrars():
+        register(rsub)
 
     v = sub.add_parser("verify", help="run the verification cases against independent references")
     v.add_argument("--quick", action="store_true", help="fewer, shorter cases")
@@ -154,6 +142,14 @@ def build_parser() -> argparse.ArgumentParser:
     for register in verb_registrars():
         register(sub)
     return parser
+
+
+def run_registrars() -> tuple:
+    """The ``register(run_subparsers)`` of the scenarios of ``dejax run`` defined above this
+    package: ``run experiment FILE.toml`` (``fitting.cli``)."""
+    from fitting import cli as fitting_cli
+
+    return (fitting_cli.register_run_experiment,)
 
 
 def verb_registrars() -> tuple:
@@ -231,7 +227,7 @@ def _h5_snapshot(problem, state, q0) -> dict:
     return snap
 
 
-def _run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
+def run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     import numpy as np
 
     from . import integrate as it
@@ -347,7 +343,7 @@ def _run_block(args):
         damping=args.damping,
         volumetric=args.volumetric,
     )
-    return _run_problem(problem, args.t_end, args.dt, args, ["lateral_stretch"])
+    return run_problem(problem, args.t_end, args.dt, args, ["lateral_stretch"])
 
 
 def _run_rolled(args):
@@ -379,7 +375,7 @@ def _run_rolled(args):
         t_end = args.cycles / args.freq if args.cycles is not None else float(voltage.times[-1])
     else:
         t_end = (args.cycles if args.cycles is not None else 10.0) / args.freq
-    return _run_problem(problem, t_end, args.dt, args, ["x_P"], args.solver)
+    return run_problem(problem, t_end, args.dt, args, ["x_P"], args.solver)
 
 
 def _run_torsional(args):
@@ -387,22 +383,7 @@ def _run_torsional(args):
 
     problem = scenarios.torsional(args.phibar_max, args.t_ramp, viscous=args.viscous, shape=args.mesh,
                                   gauss_order=args.gauss or 3, damping=args.damping, volumetric=args.volumetric)
-    return _run_problem(problem, args.t_end or args.t_ramp, args.dt, args, ["twist_angle"], args.solver)
-
-
-def _run_experiment(args):
-    """``dejax run experiment FILE.toml``: the experiment under one trace's loading (``fitting.experiment.
-    experiment_run``); a missing or invalid file or an unknown trace raises ValueError (exit 2) before any
-    computation."""
-    from fitting.data import load_experiment
-    from fitting.experiment import experiment_run
-
-    exp = load_experiment(args.experiment)  # DataError (a ValueError): exit 2, nothing computed
-    setup = experiment_run(exp, args.trace, dt=args.dt, dt_min=args.dt_min, rho_inf=args.rho_inf,
-                           damping=args.damping, gauss_order=args.gauss, newton_tol=args.newton_tol,
-                           volumetric=args.volumetric)
-    run_args = argparse.Namespace(**{**vars(args), **setup.settings})
-    return _run_problem(setup.problem, setup.t_end, setup.settings["dt"], run_args, [setup.output])
+    return run_problem(problem, args.t_end or args.t_ramp, args.dt, args, ["twist_angle"], args.solver)
 
 
 def expand_run_shorthand(argv: list) -> list:

@@ -40,6 +40,43 @@ def register(subparsers) -> None:
     register_diagnose(subparsers)
 
 
+# ----------------------------------------------------------------------------- run experiment
+
+
+def run_experiment_handler(args) -> int:
+    """``dejax run experiment FILE.toml``: the experiment under one trace's loading
+    (``experiment.experiment_run``); a missing or invalid file or an unknown trace raises
+    ValueError (exit 2) before any computation."""
+    from dejax.cli import run_problem
+
+    exp = load_experiment(args.experiment)  # DataError (a ValueError): exit 2, nothing computed
+    setup = experiment.experiment_run(exp, args.trace, dt=args.dt, dt_min=args.dt_min, rho_inf=args.rho_inf,
+                                      damping=args.damping, gauss_order=args.gauss, newton_tol=args.newton_tol,
+                                      volumetric=args.volumetric)
+    run_args = argparse.Namespace(**{**vars(args), **setup.settings})
+    return run_problem(setup.problem, setup.t_end, setup.settings["dt"], run_args, [setup.output])
+
+
+def register_run_experiment(run_subparsers) -> argparse.ArgumentParser:
+    """Add ``experiment`` to the scenarios of ``dejax run``."""
+    from dejax.cli import common_solver_args
+
+    e = run_subparsers.add_parser(
+        "experiment", help="an experiment file (TOML + CSV, e.g. dejax fit's fitted.toml) under one trace's loading; "
+                           "short form: dejax run FILE.toml",
+        description="Simulate an experiment file's scenario with its material and geometry under the loading of one "
+                    "of its traces (its voltage column, else its loading table; uniaxial: its stretch), from 0 to the "
+                    "trace's last time ([solver] t_end if given). --dt, --dt-min, --rho-inf, --damping, --gauss and "
+                    "--newton-tol default to the file's [solver] (else dt = the trace's span / 200, the defaults "
+                    "below). 'dejax run FILE.toml ...' is short for 'dejax run experiment FILE.toml ...'.")
+    e.add_argument("experiment", help="experiment TOML file (docs/experiment-format.md)")
+    e.add_argument("--trace", default=None, help="name of the trace whose loading drives the run (default: the "
+                                                 "first [[traces]])")
+    common_solver_args(e, dt=None)
+    e.set_defaults(run_scenario=run_experiment_handler, rho_inf=None, damping=None, newton_tol=None, dt_min=None)
+    return e
+
+
 # ----------------------------------------------------------------------------- fit
 
 
