@@ -293,7 +293,7 @@ def initial_acceleration(model: Model, rhs, dense_limit: int = 4000):
     if model.structure.n_free <= dense_limit:
         return jnp.linalg.solve(mdl.assemble_dense(model, mdl.mass_elements(model)), rhs)
     op = lambda x: mdl.reduce(model, mdl.mass_apply(model, mdl.expand(model, x)))
-    s2 = jnp.asarray(model.structure.dof_scale) ** 2
+    s2 = mdl.dof_scale(model) ** 2
     return jax.scipy.sparse.linalg.cg(op, rhs, M=lambda r: r * s2, tol=1e-12, maxiter=2000)[0]
 
 
@@ -372,7 +372,7 @@ def _residual_norm(model: Model, ru, g):
     Forces are weighted by the coordinate scale and volume residuals by the shear modulus
     (the stress scale of the solution), so every entry is an energy; any positive
     weighting keeps the Newton direction a descent direction of this norm."""
-    r2 = jnp.sum((ru * jnp.asarray(model.structure.dof_scale)) ** 2)
+    r2 = jnp.sum((ru * mdl.dof_scale(model)) ** 2)
     if model.structure.mixed:
         r2 = r2 + jnp.sum((_shear_scale(model) * g) ** 2)
     return jnp.sqrt(r2)
@@ -453,7 +453,7 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         return dz, mdl.pressure_correction(model, g, kup, kpp, mdl.expand(model, dz))
 
     def _solve(model, ctx, z0, p0, fac, valid):
-        scale = jnp.asarray(model.structure.dof_scale)
+        scale = mdl.dof_scale(model)
         floor = _residual_floor(model, scheme.matrix_coefficients(ctx.t1 - ctx.state.t)[0])
 
         def trial(z, p, dz, dp, a):
@@ -950,10 +950,13 @@ def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
     def replay(model, loading, s0):
         carry = initial_carry(model, s0, step.solver, 0)
         carry, (outs, *_) = run(model, loading, carry, grid, on)
-        return jax.tree_util.tree_map(lambda a: a[rows], outs), carry.state
+        return jax.tree_util.tree_map(lambda a: a[rows], outs), carry.state, carry.status
 
-    _, (d_outs, d_final) = eqx.filter_jvp(replay, (model, loading, s0), tangents[:3])
-    nan_if = lambda t: jax.tree_util.tree_map(lambda a: jnp.where(overflow, jnp.nan, a), t)
+    (_, _, replay_status), (d_outs, d_final, _) = eqx.filter_jvp(replay, (model, loading, s0), tangents[:3])
+    # a replay whose Newton fails where the run converged (its factorization history differs)
+    # would freeze the tangents at the failure: NaN says so instead of a wrong derivative
+    bad = overflow | (replay_status != 0)
+    nan_if = lambda t: jax.tree_util.tree_map(lambda a: jnp.where(bad, jnp.nan, a), t)
     t_res = _zero_tangent(res)
     t_res["outputs"] = nan_if(d_outs)
     t_res["final"] = nan_if(d_final)

@@ -44,7 +44,7 @@ class Structure:
     constrained: np.ndarray  # (n_constrained,)
     n_dofs: int
     gauss_order: int
-    dof_scale: np.ndarray  # (n_free,) length scale of each free coordinate (m for positions, 1 for gradients)
+    is_position: np.ndarray  # (n_free,) bool: the reduced unknown is a position (else a gradient component)
     node_sets: dict
     volumetric: str = "mixed"  # "mixed" (linear pressure), "mixed-constant", "displacement" (penalty only)
     incompressible: bool = False  # K = inf (mixed forms only): exact volume constraints per element
@@ -132,9 +132,8 @@ def build_model(
         if np.any(dv <= 0):
             e = int(np.argmin(dv.min(axis=1)))
             raise ValueError(f"element {e} has a non-positive reference volume Jacobian: check its orientation")
-        ell = float(np.cbrt(dv.sum() / dv.shape[0]))
     except jax.errors.TracerArrayConversionError:
-        ell = 1.0
+        pass  # a traced mesh (geometry derivatives): no orientation check possible here
     conn = mesh.conn
     slots = (4 * conn[:, :, None] + np.arange(4)).reshape(len(conn), 32)
     edofs = (3 * slots[:, :, None] + np.arange(3)).reshape(len(conn), 96)
@@ -151,10 +150,8 @@ def build_model(
     points, _ = el.gauss_rule(int(gauss_order))
     basis = {"mixed": np.concatenate([np.ones((points.shape[0], 1)), points], axis=1),
              "mixed-constant": np.ones((points.shape[0], 1)), "displacement": None}[volumetric]
-    is_pos = (free % 12) < 3
-    dof_scale = np.where(is_pos, ell, 1.0)
     structure = Structure(conn=conn, slots=slots, edofs=edofs, free=free, col=col, constrained=constrained,
-                          n_dofs=mesh.n_dofs, gauss_order=int(gauss_order), dof_scale=dof_scale,
+                          n_dofs=mesh.n_dofs, gauss_order=int(gauss_order), is_position=(free % 12) < 3,
                           node_sets=dict(mesh.node_sets), volumetric=volumetric, incompressible=incompressible,
                           pressure_basis=basis)
     pot = mesh.potential[:, conn, :]  # (n_ch, n_el, 8, 4)
@@ -167,6 +164,15 @@ def build_model(
     return Model(q0=mesh.reference_coordinates(), N=N, G=G, dV=dV, field_dirs=field_dirs, mass_e=mass_e,
                  material=material, damping=jnp.asarray(damping, dtype=float), gravity=jnp.asarray(gravity, dtype=float),
                  dead_load=jnp.zeros(mesh.n_dofs), prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
+
+
+def dof_scale(model: Model) -> jax.Array:
+    """(n_free,) length scale of each reduced unknown: the mean element size (cube root of
+    the mean element volume, m) for positions, 1 for gradient components. Computed from
+    the model's volumes, so it is right for a traced (differentiated) mesh as well; a scale
+    weights norms only and carries no derivative."""
+    ell = jnp.cbrt(jnp.sum(model.dV) / model.dV.shape[0])
+    return jnp.where(jnp.asarray(model.structure.is_position), jax.lax.stop_gradient(ell), 1.0)
 
 
 # ----------------------------------------------------------------------------- kinematics

@@ -8,7 +8,7 @@ becomes singular: past it no nearby equilibrium exists, so Newton fails at every
 size. A run whose Newton fails at dt_min is classified as an instability when the
 smallest eigenvalue of K at the last converged sub-step has fallen to
 ``INSTABILITY_RATIO`` of its value in the unloaded reference state, or below zero.
-Eigenvalues are of D K D with D the dofs' length scales (``Structure.dof_scale``), so that
+Eigenvalues are of D K D with D the dofs' length scales (``model.dof_scale``), so that
 position and gradient coordinates weigh alike.
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ def _tangents(model, q, E, Cv, dt, p):
 
 def smallest_eigenvalue(model: mdl.Model, Ke) -> float:
     """Smallest eigenvalue of D T^T K T D for element matrices Ke (n_el, 96, 96)."""
-    d = np.asarray(model.structure.dof_scale)
+    d = np.asarray(mdl.dof_scale(model))
     if model.structure.n_free <= DENSE_LIMIT:
         K = np.asarray(mdl.assemble_dense(model, Ke))
         K = 0.5 * (K + K.T) * d[:, None] * d[None, :]

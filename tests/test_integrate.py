@@ -91,7 +91,7 @@ class Vibration:
 
         z0, n = model.q0[free], len(free)
         K = np.zeros((n, n))
-        for j, h in enumerate(1e-6 * s.dof_scale):
+        for j, h in enumerate(1e-6 * np.asarray(mdl.dof_scale(model))):
             e = jnp.zeros(n).at[j].set(h)
             K[:, j] = (np.asarray(fint(z0 + e)) - np.asarray(fint(z0 - e))) / (2 * h)
         w2, V = sla.eigh(0.5 * (K + K.T), M)  # M-orthonormal modes

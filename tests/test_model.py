@@ -42,7 +42,7 @@ def _deformed_inputs(model, seed=0):
     """A generic state: perturbed coordinates, det-1 viscous tensors away from I, a field."""
     rng = np.random.default_rng(seed)
     s = model.structure
-    z = np.asarray(model.q0)[s.free] + 0.03 * s.dof_scale * rng.standard_normal(s.n_free)
+    z = np.asarray(model.q0)[s.free] + 0.03 * np.asarray(mdl.dof_scale(model)) * rng.standard_normal(s.n_free)
     n_el, n_gp = model.dV.shape
     nu = model.material.n_units
     A = 0.1 * rng.standard_normal((n_el, n_gp, nu, 3, 3))
@@ -102,7 +102,7 @@ def test_iteration_matrix_symmetric_and_consistent(volumetric, viscous, K_ratio)
 
     s = model.structure
     fd = np.zeros_like(K)
-    for j, h in enumerate(1e-6 * s.dof_scale):
+    for j, h in enumerate(1e-6 * np.asarray(mdl.dof_scale(model))):
         e = jnp.zeros(s.n_free).at[j].set(h)
         fd[:, j] = (np.asarray(residual(z + e)) - np.asarray(residual(z - e))) / (2 * h)
     assert np.abs(fd - K).max() <= 1e-6 * scale
@@ -170,3 +170,23 @@ def test_dead_face_traction_gives_the_energy_stationary_stretch():
                        + 0.5 * mu * Jm * np.log(1 - (2 * (l - 1e-7) ** 2 + (l - 1e-7) ** -4 - 3) / Jm) + 2 * s * (l - 1e-7)) / 2e-7
     ref = optimize.brentq(d_pot, 1.0, 1.5, xtol=1e-14)
     assert lam == pytest.approx(ref, rel=1e-5) and lam > 1.05
+
+
+def test_dof_scale_of_a_traced_mesh_is_the_element_size():
+    """Norms weight positions by the element size; a mesh built from traced geometry (h, L,
+    r under jax.jit / jacfwd) must get the same scale as a concrete one, or Newton's
+    relative tolerance means something else in a differentiated run (it once fell back to
+    1 m, and the 4x8x1 tube's first step failed only when h was traced)."""
+    from dejax import scenarios as sc
+
+    def scale(h):
+        return mdl.dof_scale(sc.rolled("IV", shape=(1, 4, 1), h=h).model)
+
+    eager, traced = np.asarray(scale(2e-3)), np.asarray(jax.jit(scale)(2e-3))
+    m = sc.rolled("IV", shape=(1, 4, 1), h=2e-3).model
+    ell = np.cbrt(np.sum(np.asarray(m.dV)) / m.dV.shape[0])  # m: one element's volume, cube root
+    pos = np.asarray(m.structure.is_position)
+    assert 1e-4 < ell < 1e-2
+    np.testing.assert_allclose(eager[pos], ell, rtol=1e-14)
+    np.testing.assert_allclose(eager[~pos], 1.0)
+    np.testing.assert_allclose(traced, eager, rtol=1e-14)
