@@ -231,6 +231,9 @@ def register_diagnose(subparsers) -> argparse.ArgumentParser:
                    help="Levenberg-Marquardt iterations per candidate")
     p.add_argument("--fit-top", type=int_at_least("--fit-top", 0), default=3,
                    help="fit the best N candidates of the screening at the baseline (0: fit every candidate)")
+    p.add_argument("--fit-pairs", type=int_at_least("--fit-pairs", 0), default=3,
+                   help="when no single effect leaves residuals at the noise level, fit the best N screened pairs "
+                        "(more, up to 8, while none does; 0: no pairs)")
     p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
     p.set_defaults(func=diagnose_handler)
     return p
@@ -249,7 +252,8 @@ def diagnose_handler(args) -> int:
             fx.get(c)
         start = fx.from_experiment(exp) if exp.effects else None
         diag = dg.diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
-                           verbose=not getattr(args, "quiet", False), fit_top=args.fit_top)
+                           verbose=not getattr(args, "quiet", False), fit_top=args.fit_top,
+                           pairs=args.fit_pairs > 0, fit_pairs=args.fit_pairs)
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
         print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2

@@ -19,9 +19,9 @@ viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Tr
     residuals per effect parameter (a simulation per model-effect parameter, none for the
     sensor effects), and for every candidate and every pair the bounded linear
     least-squares fit of the baseline residuals on its columns (a score-type test: the
-    SSE and BIC the first-order model predicts). The best ``fit_top`` candidates (and the
-    best pair when its screened BIC beats the best single's by ``bic_threshold``) are then
-    fitted on the fit traces (their parameters only, the baseline held; start = the better
+    SSE and BIC the first-order model predicts). The best ``fit_top`` candidates (and, when
+    no single leaves residuals at the noise level, the best ``fit_pairs`` screened pairs,
+    more while none does) are then fitted on the fit traces (their parameters only, the baseline held; start = the better
     of the off values and the screening's step; bounded
     Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
     forward-difference Jacobian, Broyden-updated between its evaluations, so the one
@@ -124,12 +124,16 @@ class Diagnosis:
 
 def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | None = None,
              noise: float | None = None, bic_threshold: float = 10.0, z: float = 4.0, max_iter: int = 8,
-             start: Mapping | None = None, verbose: bool = False, fit_top: int = 3, pairs: bool = True) -> Diagnosis:
+             start: Mapping | None = None, verbose: bool = False, fit_top: int = 3, pairs: bool = True,
+             fit_pairs: int = 3, max_pairs: int = 8) -> Diagnosis:
     """Run (a)-(c) of the module docstring. ``candidates``: effect names (default: all).
 
     ``fit_top``: how many candidates, best screened first, are fitted (0: every one, no
-    screening); ``pairs``: also screen every pair and fit the best one when its screened
-    BIC beats the best single's by ``bic_threshold``."""
+    screening); ``pairs``: also screen every pair and fit, best screened first, those whose
+    screened BIC beats the best single's by ``bic_threshold``: ``fit_pairs`` of them, and
+    more (up to ``max_pairs``) while no fitted candidate leaves residuals at the noise level
+    (a pair of near-equivalent effects can screen above the true one); none when a single
+    effect already does."""
     t0 = _time.time()
     fit = [tr for tr in traces if tr.role == "fit"]
     hold = [tr for tr in traces if tr.role != "fit"]
@@ -157,6 +161,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
 
     results = []
     scr = None
+    pair_queue = []
     to_fit = [(name,) for name in candidates]
     if fit_top and len(candidates) > fit_top:
         ts = _time.time()
@@ -164,14 +169,15 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
         scr = screen(fwd, candidates, fit, r0, pairs=pairs)
         singles = sorted(((name,) for name in candidates), key=lambda g: scr[g].d_bic)
         to_fit = singles[:fit_top]
-        if pairs:
-            best_pair = min((g for g in scr if len(g) == 2), key=lambda g: scr[g].d_bic, default=None)
-            if best_pair is not None and scr[best_pair].d_bic < scr[singles[0]].d_bic - bic_threshold:
-                to_fit.append(best_pair)  # fitted only if the best single leaves a gap (below)
+        if pairs:  # pair candidates, best screened first, that beat the best single's screened BIC
+            pair_queue = [g for g in sorted((g for g in scr if len(g) == 2), key=lambda g: scr[g].d_bic)
+                          if scr[g].d_bic < scr[singles[0]].d_bic - bic_threshold]
         if verbose:
             print(f"[diagnose] screened {len(candidates)} candidate(s){' and their pairs' if pairs else ''} at the "
                   f"baseline in {_time.time() - ts:.1f} s ({fwd.n_sims - s0} simulation(s)); fitting "
-                  + ", ".join("+".join(g) for g in to_fit), flush=True)
+                  + ", ".join("+".join(g) for g in to_fit)
+                  + (f", then up to {max_pairs} of the pairs " + ", ".join("+".join(g) for g in pair_queue[:max_pairs])
+                     if pair_queue else ""), flush=True)
         for g in singles[fit_top:]:
             sc = scr[g]
             k = fx.get(g[0]).n_params
@@ -179,13 +185,27 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
             vals = fx.values_at(g, sc.z)
             results.append(CandidateResult(g[0], vals, {}, k, sc.sse, math.sqrt(sc.sse / n), None, aic, bic,
                                            aic - aic0, bic - bic0, 0, 0.0, fitted=False))
-    for i, g in enumerate(to_fit):
-        fitted = [r for r in results if r.fitted]
-        if len(g) > 1 and fitted and min(r.sse_fit for r in fitted) / n <= chi_lim * sigma ** 2:
-            if verbose:
-                print(f"  [{i + 1}/{len(to_fit)}] {'+'.join(g):<20} not fitted: the best single effect leaves "
-                      "residuals at the noise level", flush=True)
-            continue
+
+    def at_noise(rs):
+        return any(r.sse_fit / n <= chi_lim * sigma ** 2 for r in rs)
+
+    def queue():
+        """Singles, then pairs: none when a single leaves residuals at the noise level; the best
+        ``fit_pairs`` screened pairs, and further ones (up to ``max_pairs``) while no fitted
+        candidate reaches the noise level."""
+        yield from to_fit
+        for j, g in enumerate(pair_queue[:max_pairs]):
+            fitted = [r for r in results if r.fitted]
+            if at_noise(r for r in fitted if "+" not in r.name):
+                if verbose:
+                    print("  pairs not fitted: a single effect leaves residuals at the noise level", flush=True)
+                return
+            if j >= fit_pairs and at_noise(fitted):
+                return
+            yield g
+
+    n_queue = len(to_fit) + len(pair_queue[:max_pairs])  # at most
+    for i, g in enumerate(queue()):
         ts = _time.time()
         s0 = fwd.n_sims
         vals, sd, sse, _ = fit_effects(fwd, list(g), fit, start=start, max_iter=max_iter,
@@ -201,7 +221,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
         results.append(c)
         if verbose:
             rh_text = "-" if rh is None else f"{rh:.3e}"
-            print(f"  [{i + 1}/{len(to_fit)}] {c.name:<20} dBIC={c.d_bic:9.1f} rms_fit={c.rms_fit:.3e} "
+            print(f"  [{i + 1}/{n_queue}] {c.name:<20} dBIC={c.d_bic:9.1f} rms_fit={c.rms_fit:.3e} "
                   f"rms_hold={rh_text} ({c.seconds:.1f} s)", flush=True)
 
     def key(c):
