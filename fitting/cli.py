@@ -169,13 +169,14 @@ def sensitivity_handler(args) -> int:
         fd = S.finite_differences(params, names, setup, rel_step=args.fd_step)
         fd_s = time.perf_counter() - tic
         rev = S.reverse_check(params, names, setup, jacobian=res["jacobian"])
-        print(f"{'output':>10} {'jacfwd vs central FD':>21} {'reverse vs forward':>19}   (max relative error)")
+        print(f"{'output':>10} {'jacfwd vs central FD':>21} {'reverse vs forward':>19}   (max relative error; "
+              "not judged: entries with |p dy/dp| < 1e-3 max|y|)")
         checks = {}
-        for k in res["jacobian"]:
-            e_fd = S.relative_error(res["jacobian"][k], fd[k])
-            e_rev = rev["rows"][k]["rel_error"]
-            checks[k] = dict(fd_rel_error=e_fd, reverse_rel_error=e_rev)
-            print(f"{k:>10} {e_fd:21.2e} {e_rev:19.2e}")
+        for r in S.check_rows(res, fd, rev):
+            checks[r["output"]] = dict(fd_rel_error=r["fd_error"], reverse_rel_error=r["rev_error"], not_judged=r["tiny"])
+            e_fd = "-" if r["fd_error"] is None else f"{r['fd_error']:.2e}"
+            print(f"{r['output']:>10} {e_fd:>21} {r['rev_error']:19.2e}" + (f"   not judged: {', '.join(r['tiny'])}"
+                                                                            if r["tiny"] else ""))
         print(f"central differences ({2 * len(names)} simulations, step {args.fd_step:g} p) {fd_s:.1f} s; one reverse "
               f"pass {rev['seconds_reverse']:.3f} s ({rev['seconds_reverse'] / res['seconds_simulation']:.2f} x a simulation)")
     if args.out:

@@ -35,7 +35,8 @@ from dejax import linsolve, parameters, scenarios
 
 from .fit import apply_params
 
-__all__ = ["Setup", "outputs", "sensitivity", "reverse_check", "finite_differences", "default_params", "check_names"]
+__all__ = ["Setup", "outputs", "sensitivity", "reverse_check", "finite_differences", "default_params", "check_names",
+           "relative_error", "check_rows"]
 
 GEOMETRY = ("h", "L", "r")
 
@@ -212,3 +213,31 @@ def relative_error(J, J_ref) -> float:
     den = np.max(np.abs(R2), axis=0)
     den = np.where(den > 0, den, 1.0)
     return float(np.max(np.max(np.abs(J2 - R2), axis=0) / den))
+
+
+def check_rows(res: dict, fd: dict, rev: dict | None = None, tiny: float = 1e-3) -> list[dict]:
+    """Per output of ``sensitivity`` (``res``): the check against central differences ``fd``
+    (and reverse mode ``rev``, from ``reverse_check``).
+
+    An entry dy/dp_j counts as tiny when its relative sensitivity |p_j dy/dp_j| / max|y| is
+    below ``tiny`` (a 100 % change of p_j moves y by less than 0.1 %): differences of it
+    measure the solver's round-off, not the derivative, so it is reported but not judged.
+    Returns dicts(output, row (the row judged: the largest relative sensitivity), value,
+    rel_sens (p_j/y dy/dp_j there), param, fd_error (relative_error over the judged
+    columns, None if every column is tiny), rev_error, tiny (names of the unjudged
+    columns))."""
+    names, p = res["names"], np.asarray(res["p"])
+    out = []
+    for k, J in res["jacobian"].items():
+        J = np.asarray(J).reshape(-1, len(names))
+        F = np.asarray(fd[k]).reshape(-1, len(names))
+        y = np.asarray(res["values"][k]).reshape(-1)
+        ymax = np.max(np.abs(y)) or 1.0
+        rel = F * p / ymax  # (rows, k) relative sensitivities (from the differences)
+        judged = np.max(np.abs(rel), axis=0) >= tiny
+        i, j = np.unravel_index(int(np.argmax(np.abs(rel))), rel.shape)
+        err = relative_error(J[:, judged], F[:, judged]) if judged.any() else None
+        out.append(dict(output=k, row=int(i), value=float(y[i]), rel_sens=float(rel[i, j]), param=names[j],
+                        fd_error=err, rev_error=None if rev is None else rev["rows"][k]["rel_error"],
+                        tiny=[n for n, m in zip(names, judged) if not m]))
+    return out

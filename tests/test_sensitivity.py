@@ -74,3 +74,20 @@ def test_sensitivity_verb_rejects_bad_arguments(capsys):
         args = ap.parse_args(argv)
         assert args.func(args) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_check_rows_judges_only_derivatives_that_are_not_tiny():
+    """A column whose relative sensitivity is below 1e-3 is listed as not judged; a wrong
+    derivative elsewhere is caught; the judged row is the largest relative sensitivity."""
+    p = np.array([2e-3, 5e4])
+    y = np.array([1.0, 2.0, 4.0])
+    J = np.array([[10.0, 1e-12], [20.0, 2e-12], [40.0, 4e-12]])  # d/dp1: relative 4e-8 x 5e4 / 4: tiny
+    F = J.copy()
+    F[:, 1] *= 1.5  # the differences of a tiny column are round-off: not judged
+    res = dict(names=["h", "mu_1"], p=p, values={"x": y}, jacobian={"x": J})
+    (row,) = S.check_rows(res, {"x": F})
+    assert row["tiny"] == ["mu_1"] and row["fd_error"] < 1e-15 and row["param"] == "h" and row["row"] == 2
+    assert abs(row["rel_sens"] - 40.0 * 2e-3 / 4.0) < 1e-15
+    F[2, 0] *= 1.01  # a wrong judged entry
+    (row,) = S.check_rows(res, {"x": F})
+    assert 0.009 < row["fd_error"] < 0.011
