@@ -138,7 +138,7 @@ def run_case(args):
     top3_both = (true_set <= set().union(*(parts(n) for n in ranked[:3]))) if len(truth) > 1 else None
     return dict(label=label, truth=truth, top=top, significant_top=d.ranking[0]["significant"], rank_true=rank_true,
                 top3_both=top3_both, resolve=resolve,
-                verdict=d.verdict, noise=d.noise, chi2=d.chi2_ratio, base_rms_hold=d.baseline["rms_holdout"],
+                verdict=d.verdict + (f" (equivalent: {', '.join(d.alternatives)})" if d.alternatives else ""), noise=d.noise, chi2=d.chi2_ratio, base_rms_hold=d.baseline["rms_holdout"],
                 shrink=shrink, seconds=time.time() - t0, table=d.table(),
                 top_values=d.ranking[0]["values"])
 

@@ -261,5 +261,7 @@ def diagnose_handler(args) -> int:
     files = report.write_report(diag, traces, args.out, title=f"Gap diagnosis: {exp.name}")
     print(diag.table())
     print(f"verdict: {diag.verdict}")
+    if diag.alternatives:
+        print("not separated from it by the withheld data (equivalent explanations): " + ", ".join(diag.alternatives))
     print(f"report: {files['markdown']}")
     return 0

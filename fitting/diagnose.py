@@ -99,6 +99,8 @@ class Diagnosis:
     n_fit: int
     seconds: float
     preds: dict = dataclasses.field(default_factory=dict, repr=False)
+    # significant candidates the data do not tell apart from the best (see ``equivalent``)
+    alternatives: list = dataclasses.field(default_factory=list)
 
     def table(self) -> str:
         lines = [f"{'rank':>4} {'effect':<20} {'k':>2} {'dBIC':>9} {'dAIC':>9} {'RMS fit':>10} {'RMS hold':>10} "
@@ -253,5 +255,19 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
         for f, d0 in before["features"].items():
             g0, g1 = d0["rms_gap"], after["features"][f]["rms_gap"]
             shrink["features"][f] = {"gap_before": g0, "gap_after": g1, "shrinkage": 1.0 - g1 / g0 if g0 > 0 else None}
+    alts = equivalent(best, results, n_hold=int(sum(len(tr) for tr in hold)) if hold else n) if best else []
     return Diagnosis(verdict, best.name if best else None, sigma, chi, chi_lim, baseline,
-                     [c.as_dict() for c in results], before, after, shrink, n, _time.time() - t0, preds)
+                     [c.as_dict() for c in results], before, after, shrink, n, _time.time() - t0, preds, alts)
+
+
+def equivalent(best: CandidateResult, results, n_hold: int, z: float = 2.0) -> list:
+    """Names of the other significant fitted candidates whose holdout mean square (fit mean
+    square without holdout traces) is within ``z`` standard deviations of the best's: an MSE
+    over n points of Gaussian residuals has relative sd sqrt(2/n), so within a factor
+    1 + z sqrt(2 / n_hold) the withheld data do not separate them (e.g. a creep unit whose
+    relaxation time far exceeds the record acts as an elastic stiffness)."""
+    def mse(c):
+        return (c.rms_holdout if c.rms_holdout is not None else c.rms_fit) ** 2
+
+    lim = mse(best) * (1.0 + z * math.sqrt(2.0 / n_hold))
+    return [c.name for c in results if c is not best and c.fitted and c.significant and mse(c) <= lim]

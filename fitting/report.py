@@ -83,7 +83,9 @@ def write_report(diag: Diagnosis, traces: Sequence[Trace], out, title: str = "Si
     out.mkdir(parents=True, exist_ok=True)
     figs = _figures(diag, traces, out)
     (out / "report.json").write_text(json.dumps(diag.as_dict(), indent=1, default=float))
-    L = [f"# {title}", "", f"**Verdict: {diag.verdict}.**", "",
+    alt = ([f"Equivalent explanations (holdout mean square within 2 sd of the best's): "
+            f"{', '.join(diag.alternatives)}.", ""] if diag.alternatives else [])
+    L = [f"# {title}", "", f"**Verdict: {diag.verdict}.**", ""] + alt + [
          f"- noise level sigma = {diag.noise:.3e}; baseline fit RMS = {diag.baseline['rms_fit']:.3e}; "
          f"RMS^2/sigma^2 = {diag.chi2_ratio:.2f} (limit {diag.chi2_limit:.2f}); n_fit = {diag.n_fit}",
          "", "## Where the gap lies (baseline residual)", "",

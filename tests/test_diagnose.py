@@ -100,3 +100,15 @@ def test_fit_top_fits_only_the_best_screened_candidate():
     assert d.best == "sensor_offset" and d.ranking[0]["fitted"]
     assert [c["fitted"] for c in d.ranking].count(True) == 1
     assert all(not c["significant"] for c in d.ranking if not c["fitted"])
+
+
+def test_equivalent_lists_candidates_the_withheld_data_do_not_separate():
+    """n_hold = 200: an MSE has relative sd sqrt(2/200) = 0.1, so within 2 sd means MSE
+    below 1.2 x the best's; insignificant or screened-out candidates never count."""
+    def cand(name, rms_hold, significant=True, fitted=True):
+        return dg.CandidateResult(name, {}, {}, 1, 1.0, 1.0, rms_hold, 0.0, 0.0, 0.0, -50.0, 0, 0.0,
+                                  significant=significant, fitted=fitted)
+
+    best = cand("a", 1.0)
+    others = [cand("b", 1.09), cand("c", 1.1), cand("d", 1.0, significant=False), cand("e", 1.0, fitted=False)]
+    assert dg.equivalent(best, [best] + others, n_hold=200) == ["b"]  # 1.09^2 = 1.19 < 1.2 < 1.21 = 1.1^2
