@@ -141,7 +141,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     hold = [tr for tr in traces if tr.role != "fit"]
     if not fit:
         raise ValueError("diagnose: no trace with role 'fit'")
-    candidates = list(candidates or fx.names())
+    candidates = list(candidates or fx.names(fwd.pieces0))
     sigma = estimate_noise(traces) if noise is None else float(noise)
     n = int(sum(len(tr) for tr in fit))
 

@@ -28,7 +28,8 @@ mu_drift            rate (1/s)                                  moduli x (1 + ra
 electrostriction    eps_b (-), eps_a (-)                        eps(1 + eps_b(lambda_E - 1) + eps_a(I1bar - 3))
 electrode_stiffness rel (-)                                     mu_inf -> mu_inf (1 + rel)
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
-prestress           s0 (Pa)                                     dead traction s0 on the free lateral faces
+prestress           s0 (Pa)                                     dead traction s0 on the free faces
+                                                                (block: lateral, tube: axial end)
 sensor_offset       c (output units)                            y -> y + c
 sensor_drift        rate (output units / s)                     y -> y + rate t
 sensor_latency      delay (s)                                   y(t) -> y(t - delay)
@@ -278,11 +279,12 @@ def _mass(p, v):
 
 
 def _prestress(p, v):
-    # an equal-biaxial dead nominal traction s0 on the free lateral faces (x = L and y = L of the
-    # block: the consistent face loads precomputed per unit stress in make_pieces)
+    # a dead nominal traction s0 on the scenario's free faces (block: equal-biaxial on x = L and
+    # y = L; tube: axial on the free end), the consistent loads per unit stress from make_pieces
     unit = p.info.get("prestress_load")
     if unit is None:
-        raise ValueError("the prestress effect needs a block (free faces x1 and y1): no unit face load in the pieces")
+        raise ValueError("the prestress effect needs a block (free faces x1, y1) or a rolled tube (free end 'top'): "
+                         "no unit face load in the pieces")
     return p.replace(model=eqx.tree_at(lambda md: md.dead_load, p.model, v["s0"] * jnp.asarray(unit)))
 
 
@@ -349,8 +351,10 @@ UNAVAILABLE = {
 }
 
 
-def names() -> list[str]:
-    return list(EFFECTS)
+def names(pieces: "Pieces | None" = None) -> list[str]:
+    """Every effect of the library; with ``pieces``, those that apply to its scenario (the
+    pre-stress needs the scenario's free faces)."""
+    return [n for n in EFFECTS if pieces is None or n != "prestress" or "prestress_load" in pieces.info]
 
 
 def get(name: str) -> Effect:
@@ -388,11 +392,14 @@ def make_pieces(problem) -> Pieces:
     loading = eqx.tree_at(lambda l: l.voltages, problem.loading, volt) if volt else problem.loading
     info = {"slot_creep": n - 2, "slot_hysteresis": n - 1, "K_over_mu": ratio}
     mesh = problem.extras.get("mesh")
-    if mesh is not None and {"x1", "y1"} <= set(mesh.node_sets):
+    if mesh is not None:
         from dejax import model as mdl
 
-        info["prestress_load"] = np.asarray(mdl.face_traction_load(mesh, "x1", (1.0, 0.0, 0.0))
-                                            + mdl.face_traction_load(mesh, "y1", (0.0, 1.0, 0.0)))
+        if problem.name == "block" and {"x1", "y1"} <= set(mesh.node_sets):
+            info["prestress_load"] = np.asarray(mdl.face_traction_load(mesh, "x1", (1.0, 0.0, 0.0))
+                                                + mdl.face_traction_load(mesh, "y1", (0.0, 1.0, 0.0)))
+        elif problem.name == "rolled":  # axial pre-load of the free end (a weight, a pre-stretched roll)
+            info["prestress_load"] = np.asarray(mdl.face_traction_load(mesh, "top", (1.0, 0.0, 0.0)))
     return Pieces(problem.model, loading, Sensor(), info)
 
 

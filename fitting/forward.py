@@ -9,7 +9,7 @@
 * ``residuals_at(fwd, names, traces)``: the residuals as a function of the normalized
   parameters z of the effects ``names`` (``effects.param_list``), several points at once;
   ``fd_jacobian``: their forward-difference Jacobian in z (step ``FD_STEP``).
-* ``forward_from_experiment(exp)``: the forward and traces of a block experiment file;
+* ``forward_from_experiment(exp)``: the forward and traces of a block or rolled-tube experiment file;
   ``block_forward``, ``synthetic_traces``: synthetic studies of the block.
 """
 from __future__ import annotations
@@ -181,23 +181,27 @@ def fd_jacobian(resid_many, z, r, h: float = FD_STEP) -> np.ndarray:
 
 
 def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
-    """Forward model and traces (the experiment's, with their response channel) of a
-    block-scenario Experiment. Response channel: ``stretch`` (lateral stretch) or
-    ``displacement`` ((stretch - 1) L, m)."""
+    """Forward model and traces (the experiment's, with their response channel) of a block or
+    rolled-tube Experiment.
+
+    block: response ``stretch`` (lateral stretch) or ``displacement`` ((stretch - 1) L, m);
+    rolled: response ``displacement`` or ``x_P`` (axial displacement of point P, m; geometry
+    h, r, L, mesh, probe "inner" (default) or "outer")."""
     from dejax import scenarios as sc
     from dejax.material import Material
 
-    if exp.scenario != "block":
-        raise NotImplementedError(f"diagnose supports the 'block' scenario for now, not '{exp.scenario}'")
+    channels = {"block": ("stretch", "displacement"), "rolled": ("displacement", "x_P")}
+    if exp.scenario not in channels:
+        raise NotImplementedError(f"diagnose supports the 'block' and 'rolled' scenarios for now, not '{exp.scenario}'")
     g = exp.geometry
-    L = float(g.get("L", g.get("lx", 1e-3)))
     mat = fx.augment_material(Material(**exp.material_kwargs()))
     traces = []
     channel = None
     for tr in exp.traces:
-        ch = "stretch" if "stretch" in tr.channels else "displacement" if "displacement" in tr.channels else None
+        ch = next((c for c in channels[exp.scenario] if c in tr.channels), None)
         if ch is None:
-            raise ValueError(f"trace '{tr.name}': needs a 'stretch' or 'displacement' channel for the block")
+            raise ValueError(f"trace '{tr.name}': needs a {' or '.join(repr(c) for c in channels[exp.scenario])} "
+                             f"channel for the {exp.scenario} scenario")
         if channel not in (None, ch):
             raise ValueError("all traces must carry the same response channel")
         channel = ch
@@ -205,11 +209,21 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
             raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
         traces.append(dataclasses.replace(tr, response=ch))
     pad = max(len(t) for t in traces) - 1
-    prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat,
-                    gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)),
-                    voltage=traces[0].voltage_history)
-    transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
-    fwd = Forward(prob, "lateral_stretch", rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
+    common = dict(gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)),
+                  voltage=traces[0].voltage_history)
+    if exp.scenario == "block":
+        L = float(g.get("L", g.get("lx", 1e-3)))
+        prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat, **common)
+        output = "lateral_stretch"
+        transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
+    else:
+        probe = str(g.get("probe", "inner"))
+        if probe not in ("inner", "outer"):
+            raise ValueError(f"[geometry] probe must be 'inner' or 'outer', got {probe!r}")
+        prob = sc.rolled(mat, h=float(g.get("h", 2e-3)), r=float(g.get("r", 2e-3)), L=float(g.get("L", 8e-3)),
+                         shape=tuple(g.get("mesh", (4, 8, 1))), point="P" if probe == "inner" else "P_outer", **common)
+        output, transform = "x_P", None
+    fwd = Forward(prob, output, rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
     return fwd, traces
 
 

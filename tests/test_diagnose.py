@@ -112,3 +112,4 @@ def test_equivalent_lists_candidates_the_withheld_data_do_not_separate():
     best = cand("a", 1.0)
     others = [cand("b", 1.09), cand("c", 1.1), cand("d", 1.0, significant=False), cand("e", 1.0, fitted=False)]
     assert dg.equivalent(best, [best] + others, n_hold=200) == ["b"]  # 1.09^2 = 1.19 < 1.2 < 1.21 = 1.1^2
+

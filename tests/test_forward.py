@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fitting import effects as fx
 from fitting import forward as fw
 from fitting.data import load_experiment
 from helpers import AnalyticForward, analytic_traces  # noqa: E402  (tests/helpers.py)
@@ -63,5 +64,22 @@ def test_forward_from_an_experiment_file():
         np.testing.assert_array_equal(t.y, e["stretch"])
     assert fwd.output == "lateral_stretch" and fwd.transform is None
     assert fwd.pad_to == max(len(e) for e in exp.traces) - 1
-    with pytest.raises(NotImplementedError, match="'block' scenario for now, not 'uniaxial'"):
+    with pytest.raises(NotImplementedError, match="'block' and 'rolled' scenarios for now, not 'uniaxial'"):
         fw.forward_from_experiment(load_experiment(EXAMPLES / "vhb4910_uniaxial.toml"))
+
+
+def test_rolled_experiment_gives_a_tube_forward_with_an_axial_preload():
+    """The shipped rolled example: response x_P (m) from a displacement column in um; the
+    pre-stress effect applies to the tube as an axial dead traction on its free end, whose
+    consistent loads per unit stress sum to the end's area pi ((r + h)^2 - r^2) (six
+    circumferential elements: within 1 %) and have no lateral part."""
+    fwd, traces = fw.forward_from_experiment(load_experiment(EXAMPLES / "tube_diagnose.toml"))
+    assert fwd.output == "x_P" and [t.role for t in traces] == ["fit", "fit", "holdout"]
+    assert all(t.response == "displacement" for t in traces)
+    assert 1e-5 < max(abs(traces[1].y)) < 1e-3  # tens of um, in m
+    unit = np.asarray(fwd.pieces0.info["prestress_load"]).reshape(-1, 4, 3)
+    area = np.pi * ((2e-3 + 2e-3) ** 2 - 2e-3 ** 2)
+    assert abs(unit[:, 0, 0].sum() / area - 1.0) < 1e-2
+    assert np.all(unit[:, 0, 1:] == 0.0)
+    assert "prestress" in fx.names(fwd.pieces0) and "prestress" not in fx.names(fx.Pieces(None, None, fx.Sensor(), {}))
+
