@@ -19,7 +19,8 @@ import numpy as np
 def _plt():
     import matplotlib
 
-    matplotlib.use("Agg")
+    if "matplotlib.pyplot" not in sys.modules:  # a script or the CLI: no display needed
+        matplotlib.use("Agg")  # (a notebook has chosen its backend, e.g. inline: keep it)
     import matplotlib.pyplot as plt
 
     return plt
