@@ -416,7 +416,7 @@ def _scenario_problem(exp, tr, g, volt, common):
         return scenarios.block(L=float(g.get("L", g.get("lx", 1e-3))), shape=tuple(g.get("mesh", (1, 1, 1))),
                                material=material, voltage=volt, **common)
     if exp.scenario == "rolled":
-        point = g.get("probe") if g.get("probe") in ("P", "P_outer") else "P"
+        point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"
         return scenarios.rolled(material, h=g["h"], r=g["r"], L=g["L"], shape=tuple(g.get("mesh", (1, 4, 1))),
                                 point=point, voltage=volt, **common)
     if exp.scenario == "torsional":

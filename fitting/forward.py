@@ -186,7 +186,8 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
 
     block: response ``stretch`` (lateral stretch) or ``displacement`` ((stretch - 1) L, m);
     rolled: response ``displacement`` or ``x_P`` (axial displacement of point P, m; geometry
-    h, r, L, mesh, probe "inner" (default) or "outer")."""
+    h, r, L, mesh (default 1 x 4 x 1, as fit and run), probe "P_outer" (or "outer") for the
+    top face's outer edge, else P, its inner edge)."""
     from dejax import scenarios as sc
     from dejax.material import Material
 
@@ -217,11 +218,9 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
         output = "lateral_stretch"
         transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
     else:
-        probe = str(g.get("probe", "inner"))
-        if probe not in ("inner", "outer"):
-            raise ValueError(f"[geometry] probe must be 'inner' or 'outer', got {probe!r}")
-        prob = sc.rolled(mat, h=float(g.get("h", 2e-3)), r=float(g.get("r", 2e-3)), L=float(g.get("L", 8e-3)),
-                         shape=tuple(g.get("mesh", (4, 8, 1))), point="P" if probe == "inner" else "P_outer", **common)
+        point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"  # as `dejax run` reads it
+        prob = sc.rolled(mat, h=float(g["h"]), r=float(g["r"]), L=float(g["L"]), shape=tuple(g.get("mesh", (1, 4, 1))),
+                         point=point, **common)
         output, transform = "x_P", None
     fwd = Forward(prob, output, rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
     return fwd, traces
