@@ -21,8 +21,8 @@ viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Tr
     least-squares fit of the baseline residuals on its columns (a score-type test: the
     SSE and BIC the first-order model predicts). The best ``fit_top`` candidates (and, when
     no single leaves residuals at the noise level, the best ``fit_pairs`` screened pairs,
-    more while none does) are then fitted on the fit traces (their parameters only, the baseline held; start = the better
-    of the off values and the screening's step; bounded
+    more while none does) are then fitted on the fit traces (their parameters only, the
+    baseline held; start = the better of the off values and the screening's step; bounded
     Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
     forward-difference Jacobian, Broyden-updated between its evaluations, so the one
     compiled ``simulate`` is reused), and ranked:
