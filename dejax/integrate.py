@@ -38,6 +38,7 @@ from typing import Callable
 
 import equinox as eqx
 import jax
+from jax.ad_checkpoint import checkpoint_name
 import jax.numpy as jnp
 import numpy as np
 
@@ -630,6 +631,9 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
         q_pred = scheme.predict(state, h, opts.predictor)
         p0 = mdl.initial_pressure(model) if state.p is None else state.p
         z, p1, it, nfac, conv, fac, Cv1 = newton(model, ctx, q_pred[s.free], p0, fac, valid)
+        # named so that a rematerialized scan (reverse mode) keeps the converged step rather
+        # than repeating its Newton iterations
+        z, p1, Cv1 = (checkpoint_name(x, STEP_SOLUTION) for x in (z, p1, Cv1))
         fac = jax.lax.stop_gradient(fac)  # no tangent carried for the factorization
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = scheme.kinematics(state, h, q1)
@@ -738,12 +742,20 @@ def make_user_step(step, control: StepControl):
     return user_step
 
 
-def make_scan(step, output_fn: Callable, control: StepControl | None = None):
+# the name of each step's converged unknowns (z, p, Cv): what a rematerialized scan keeps
+STEP_SOLUTION = "dejax_step_solution"
+
+
+def make_scan(step, output_fn: Callable, control: StepControl | None = None, remat: bool = False):
     """Return ``run(model, loading, carry, times, active) -> (carry, (outputs, iterations,
     factorizations, cutbacks, last_substep))``: lax.scan over the time grid ``times`` (n,),
     skipping inactive entries (padding) and every step after a failure. With ``control``
     each grid step is taken in sub-steps with cut-back (``make_user_step``); without it,
-    in one step (a failure is final)."""
+    in one step (a failure is final). ``remat``: each step is rematerialized in reverse
+    mode (``jax.checkpoint`` keeping only the carry and the converged unknowns), so a
+    reverse pass stores O(state) per step instead of the step's linearization (element
+    matrices, factorization): its memory then grows with the number of steps times the
+    state size, at the cost of one more assembly and factorization per step."""
     user_step = make_user_step(step, control) if control is not None else None
 
     def run(model, loading, carry: Carry, times, active):
@@ -775,6 +787,8 @@ def make_scan(step, output_fn: Callable, control: StepControl | None = None):
             c, (it, nfac, ncut) = jax.lax.cond((c.status == 0) & on, do, skip, c)
             return c, (output_fn(model, loading, c.state), it, nfac, ncut, c.n_sub - 1)
 
+        if remat:
+            body = jax.checkpoint(body, policy=jax.checkpoint_policies.save_only_these_names(STEP_SOLUTION))
         steps = jnp.arange(times.shape[0]) + carry.step_offset
         return jax.lax.scan(body, carry, (times, steps, active))
 
@@ -916,7 +930,7 @@ def _run_fixed(model, loading, s0, times, active, *, output_fn, scheme, newton, 
     step = make_step(scheme, newton, solver)
     budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0]))
     carry = initial_carry(model, s0, step.solver, budget)
-    carry, (outs, its, nfac, ncut, last) = make_scan(step, output_fn, control)(model, loading, carry, times, active)
+    carry, (outs, its, nfac, ncut, last) = make_scan(step, output_fn, control, remat=True)(model, loading, carry, times, active)
     return dict(outputs=outs, iterations=its, factorizations=nfac, cutbacks=ncut, status=carry.status,
                 fail_step=carry.fail_step, final=carry.state, dt_smallest=carry.h_smallest, schedule=carry.schedule,
                 n_sub=carry.n_sub, last=last, last_good=carry.last_good)
@@ -946,7 +960,7 @@ def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
         grid = jnp.where(on, sched, sched[jnp.maximum(res["n_sub"] - 1, 0)])
         rows = jnp.clip(res["last"], 0, budget - 1)
     step = make_step(scheme, newton, solver)
-    run = make_scan(step, output_fn)
+    run = make_scan(step, output_fn, remat=True)
 
     def replay(model, loading, s0):
         carry = initial_carry(model, s0, step.solver, 0)

@@ -30,8 +30,8 @@ electrode_stiffness rel (-)                                     mu_inf -> mu_inf
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
 prestress           s0 (Pa)                                     dead traction s0 on the free faces
                                                                 (block: lateral, tube: axial end)
-sensor_offset       c (output units)                            y -> y + c
-sensor_drift        rate (output units / s)                     y -> y + rate t
+sensor_offset       c (output units; kPa for a stress)          y -> y + c
+sensor_drift        rate (output units / s; kPa/s)             y -> y + rate t
 sensor_latency      delay (s)                                   y(t) -> y(t - delay)
 ==================  ==========================================  =====================================
 
@@ -59,7 +59,7 @@ from dejax.material import Material
 
 __all__ = [
     "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "EFFECTS", "UNAVAILABLE",
-    "get", "names", "augment_material", "make_pieces", "apply_effects", "from_experiment", "param_list", "values_at",
+    "get", "names", "applies", "augment_material", "make_pieces", "apply_effects", "from_experiment", "param_list", "values_at",
 ]
 
 DORMANT = 1e-9  # shear modulus of a dormant viscous unit, relative to mu_inf
@@ -127,17 +127,20 @@ class EffectiveVoltage(eqx.Module):
 
 
 class Sensor(eqx.Module):
-    """Output transform y_meas(t) = y(t - delay) + offset + drift t (y(t) = y(0) for t < 0)."""
+    """Output transform y_meas(t) = (1 + gain_rate t) y(t - delay) + offset + drift t
+    (y(t) = y(0) for t < 0; t from the trace's start). ``gain_rate`` carries the moduli's
+    drift into a measured stress (see the ``mu_drift`` effect)."""
 
     delay: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
     offset: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
     drift: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
+    gain_rate: jax.Array = dataclasses.field(default_factory=lambda: jnp.asarray(0.0))
 
     def __call__(self, t, y):
         t = jnp.asarray(t, dtype=float)
         y = jnp.asarray(y, dtype=float)
         yd = jnp.interp(t - self.delay, t, y)
-        return yd + self.offset + self.drift * (t - t[0])
+        return (1.0 + self.gain_rate * (t - t[0])) * yd + self.offset + self.drift * (t - t[0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,6 +201,12 @@ class Effect:
     apply: Callable[[Pieces, Mapping[str, float]], Pieces]
     doc: str
     kind: str = "model"  # "model" (needs a new simulation) or "sensor" (output transform only)
+    needs: tuple[str, ...] = ()  # what the scenario must have: "voltage", "inertia", "prestress_load"
+    on_sensor: bool = False  # a model effect that also acts on the sensor (mu_drift on a stress)
+
+    @property
+    def acts_on_sensor(self) -> bool:
+        return self.kind == "sensor" or self.on_sensor
 
     @property
     def n_params(self) -> int:
@@ -236,6 +245,8 @@ def _set_unit(pieces: Pieces, slot_key: str, mu, tau) -> Pieces:
 
 
 def _map_voltages(pieces: Pieces, fn) -> Pieces:
+    if pieces.loading is None:  # pieces without a loading (a closed-form test forward)
+        return pieces
     v = tuple(fn(h) for h in pieces.loading.voltages)
     return pieces.replace(loading=eqx.tree_at(lambda l: l.voltages, pieces.loading, v))
 
@@ -259,7 +270,11 @@ def _leak(p, v):
 
 
 def _mu_drift(p, v):
-    return _map_voltages(p, lambda h: eqx.tree_at(lambda e: e.mu_drift, h, jnp.asarray(v["rate"], dtype=float)))
+    rate = jnp.asarray(v["rate"], dtype=float)
+    p = _map_voltages(p, lambda h: eqx.tree_at(lambda e: e.mu_drift, h, rate))
+    if p.info.get("output_is_stress"):  # the mechanical stress scales with the moduli
+        p = p.replace(sensor=eqx.tree_at(lambda s: s.gain_rate, p.sensor, rate))
+    return p
 
 
 def _electrostriction(p, v):
@@ -288,12 +303,19 @@ def _prestress(p, v):
     return p.replace(model=eqx.tree_at(lambda md: md.dead_load, p.model, v["s0"] * jnp.asarray(unit)))
 
 
+def _output_unit(p) -> float:
+    """SI value of one output unit of the sensor effects: 1, or 1 kPa for a stress (Pa)."""
+    return 1e3 if p.info.get("output_is_stress") else 1.0
+
+
 def _offset(p, v):
-    return p.replace(sensor=eqx.tree_at(lambda s: s.offset, p.sensor, jnp.asarray(v["c"], dtype=float)))
+    c = jnp.asarray(v["c"], dtype=float) * _output_unit(p)
+    return p.replace(sensor=eqx.tree_at(lambda s: s.offset, p.sensor, c))
 
 
 def _drift(p, v):
-    return p.replace(sensor=eqx.tree_at(lambda s: s.drift, p.sensor, jnp.asarray(v["rate"], dtype=float)))
+    rate = jnp.asarray(v["rate"], dtype=float) * _output_unit(p)
+    return p.replace(sensor=eqx.tree_at(lambda s: s.drift, p.sensor, rate))
 
 
 def _latency(p, v):
@@ -308,26 +330,30 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
                           Param("tau", 0.05, (1e-3, 0.5), 0.05, "log", "s")),
            _hyst, "additional fast viscous Gent unit (loop area / hysteresis within a cycle)"),
     Effect("voltage_lag", (Param("tau", 0.0, (0.0, 0.2), 0.0, unit="s", doc="RC time constant"),),
-           _lag, "first-order lag between commanded and electrode voltage (source/electrode resistance x capacitance)"),
+           _lag, "first-order lag between commanded and electrode voltage (source/electrode resistance x capacitance)",
+           needs=("voltage",)),
     Effect("leakage", (Param("frac", 0.0, (0.0, 0.6), 0.0, doc="screened fraction of the field at steady state"),
                        Param("tau", 2.0, (0.05, 50.0), 2.0, "log", "s", "charging time of the screening layer")),
-           _leak, "leakage current / charge injection: effective field decays under constant voltage"),
+           _leak, "leakage current / charge injection: effective field decays under constant voltage",
+           needs=("voltage",)),
     Effect("electrostriction", (Param("eps_b", 0.0, (-0.5, 0.5), 0.0,
                                       doc="first order: eps(1 + eps_b (lambda_E - 1)), lambda_E the stretch along the field"),
                                 Param("eps_a", 0.0, (-0.3, 0.3), 0.0, doc="second order: eps(1 + eps_a (I1bar - 3))")),
            _electrostriction, "stretch-dependent permittivity (Material.eps_b, first order in the stretch along the "
-           "field, as measured on acrylic films; Material.eps_a, through I1bar - 3)"),
+           "field, as measured on acrylic films; Material.eps_a, through I1bar - 3)", needs=("voltage",)),
     Effect("mu_drift", (Param("rate", 0.0, (-0.05, 0.05), 0.0, unit="1/s", doc="mu(t) = mu (1 + rate t)"),),
            _mu_drift, "temperature drift of the moduli over the test (film warming by dissipation or the room): "
-           "every modulus scales by 1 + rate t, realised as the equivalent field scaling (inertia neglected)"),
+           "every modulus scales by 1 + rate t, realised as the equivalent field scaling (inertia neglected) "
+           "and, where the output is a stress, the same factor on its mechanical part", on_sensor=True),
     Effect("electrode_stiffness", (Param("rel", 0.0, (-0.5, 2.0), 0.0, doc="mu_layer t_layer / (mu_inf h)"),),
            _stiff, "stiffness of electrodes/fixtures: a parallel neo-Hookean layer, lumped into mu_inf "
            "(approximation: the layer shares the film's Gent limit Jm_inf)"),
     Effect("added_mass", (Param("rel", 0.0, (0.0, 100.0), 0.0, doc="added mass / film mass"),),
-           _mass, "mass of electrodes/fixtures, smeared over the film (mass matrix scaled; gravity, if any, too)"),
+           _mass, "mass of electrodes/fixtures, smeared over the film (mass matrix scaled; gravity, if any, too)",
+           needs=("inertia",)),
     Effect("prestress", (Param("s0", 0.0, (0.0, 1e5), 0.0, unit="Pa", doc="nominal in-plane dead-load stress"),),
            _prestress, "equibiaxial in-plane dead load (pre-stress): a nominal traction s0 on the free lateral "
-           "faces (the film pulled by its frame or weights)"),
+           "faces (the film pulled by its frame or weights)", needs=("prestress_load",)),
     Effect("sensor_offset", (Param("c", 0.0, (-1.0, 1.0), 0.0, unit="output"),), _offset,
            "constant sensor offset", "sensor"),
     Effect("sensor_drift", (Param("rate", 0.0, (-1.0, 1.0), 0.0, unit="output/s"),), _drift,
@@ -351,10 +377,20 @@ UNAVAILABLE = {
 }
 
 
+def applies(name: str, pieces: Pieces) -> bool:
+    """True if the effect ``name`` can act in the scenario of ``pieces``: voltage effects need
+    a voltage, added mass needs a dynamic (not quasi-static) run, the pre-stress the
+    scenario's free faces (``Effect.needs``; ``make_pieces`` records what a scenario has)."""
+    have = {"voltage": lambda: pieces.loading is None or bool(pieces.loading.voltages),  # None: not known
+            "inertia": lambda: not pieces.info.get("quasi_static", False),
+            "prestress_load": lambda: "prestress_load" in pieces.info}
+    return all(have[k]() for k in get(name).needs)
+
+
 def names(pieces: "Pieces | None" = None) -> list[str]:
-    """Every effect of the library; with ``pieces``, those that apply to its scenario (the
-    pre-stress needs the scenario's free faces)."""
-    return [n for n in EFFECTS if pieces is None or n != "prestress" or "prestress_load" in pieces.info]
+    """Every effect of the library; with ``pieces``, those that apply to its scenario
+    (``applies``)."""
+    return [n for n in EFFECTS if pieces is None or applies(n, pieces)]
 
 
 def get(name: str) -> Effect:
@@ -390,7 +426,9 @@ def make_pieces(problem) -> Pieces:
     ratio = float(mat.K[0] / mat.mu[0]) if n > 2 else 1e5
     volt = tuple(h if isinstance(h, EffectiveVoltage) else EffectiveVoltage(h) for h in problem.loading.voltages)
     loading = eqx.tree_at(lambda l: l.voltages, problem.loading, volt) if volt else problem.loading
-    info = {"slot_creep": n - 2, "slot_hysteresis": n - 1, "K_over_mu": ratio}
+    info = {"slot_creep": n - 2, "slot_hysteresis": n - 1, "K_over_mu": ratio,
+            "quasi_static": bool(getattr(problem, "quasi_static", False)),
+            "output_is_stress": problem.name == "uniaxial"}
     mesh = problem.extras.get("mesh")
     if mesh is not None:
         from dejax import model as mdl

@@ -9,7 +9,7 @@
 * ``residuals_at(fwd, names, traces)``: the residuals as a function of the normalized
   parameters z of the effects ``names`` (``effects.param_list``), several points at once;
   ``fd_jacobian``: their forward-difference Jacobian in z (step ``FD_STEP``).
-* ``forward_from_experiment(exp)``: the forward and traces of a block or rolled-tube experiment file;
+* ``forward_from_experiment(exp)``: the forward and traces of an experiment file (every scenario);
   ``block_forward``, ``synthetic_traces``: synthetic studies of the block.
 """
 from __future__ import annotations
@@ -46,11 +46,14 @@ class Forward:
 
     def __init__(self, problem, output: str = "lateral_stretch", rho_inf: float | None = None,
                  newton: it.NewtonOptions = it.NewtonOptions(tol=1e-8, max_iter=60, reuse=True),
-                 pad_to: int | None = None, transform=None):
+                 pad_to: int | None = None, transform=None, drive: Callable | None = None):
         self.problem = problem
         self.pieces0 = fx.make_pieces(problem)
         self.output = output
-        self.scheme = it.GeneralizedAlpha(problem.rho_inf if rho_inf is None else rho_inf)
+        # a quasi-static scenario (the uniaxial material test) steps quasi-statically
+        self.scheme = (it.QuasiStatic() if problem.quasi_static
+                       else it.GeneralizedAlpha(problem.rho_inf if rho_inf is None else rho_inf))
+        self.drive = drive_voltage if drive is None else drive
         self.newton = newton
         self.pad_to = pad_to
         self.transform = transform
@@ -70,7 +73,7 @@ class Forward:
         dispatches it asynchronously); returns what ``_finish`` turns into the output."""
         model_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "model"}
         p = fx.apply_effects(self.pieces0, model_fx)
-        loading = eqx.tree_at(lambda l: l.voltages[0].base, p.loading, trace.voltage_history)
+        loading = self.drive(p.loading, trace)
         n = len(trace.time) - 1
         pad = max(self.pad_to or n, n)
         self.n_sims += 1
@@ -130,7 +133,8 @@ class Forward:
         ys = self.raw_many(jobs)
         out = []
         for (effects, trace), y in zip(jobs, ys):
-            sensor_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "sensor"}
+            # the effects acting on the sensor (sensor effects; mu_drift on a stress output)
+            sensor_fx = {k: v for k, v in effects.items() if fx.get(k).acts_on_sensor}
             if sensor_fx:
                 s = fx.apply_effects(self.pieces0, sensor_fx).sensor
                 y = np.asarray(s(jnp.asarray(trace.time), jnp.asarray(y)))
@@ -147,6 +151,22 @@ class Forward:
         k = len(traces)
         return [np.concatenate([p - tr.y for p, tr in zip(preds[i * k:(i + 1) * k], traces)])
                 for i in range(len(effects_list))]
+
+
+def drive_voltage(loading: it.Loading, trace: Trace) -> it.Loading:
+    """The loading under ``trace``'s commanded voltage (the first voltage channel's history)."""
+    return eqx.tree_at(lambda l: l.voltages[0].base, loading, trace.voltage_history)
+
+
+def drive_stretch(loading: it.Loading, trace: Trace) -> it.Loading:
+    """The uniaxial loading under ``trace``'s measured stretch (linear between samples) and,
+    when the scenario has a voltage, its voltage (zero without a voltage column)."""
+    loading = eqx.tree_at(lambda l: l.motions[0].stretch, loading,
+                          loads.PiecewiseLinear(trace.time, trace.channels["stretch"]))
+    if not loading.voltages:
+        return loading
+    volt = trace.voltage_history
+    return eqx.tree_at(lambda l: l.voltages[0].base, loading, loads.Constant(0.0) if volt is None else volt)
 
 
 # ----------------------------------------------------------------------------- residuals in normalized parameters
@@ -181,21 +201,27 @@ def fd_jacobian(resid_many, z, r, h: float = FD_STEP) -> np.ndarray:
 
 
 def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
-    """Forward model and traces (the experiment's, with their response channel) of a block or
-    rolled-tube Experiment.
+    """Forward model and traces (the experiment's, with their response channel) of an
+    Experiment of any scenario, each simulated on its trace's time grid:
 
-    block: response ``stretch`` (lateral stretch) or ``displacement`` ((stretch - 1) L, m);
-    rolled: response ``displacement`` or ``x_P`` (axial displacement of point P, m; geometry
-    h, r, L, mesh (default 1 x 4 x 1, as fit and run), probe "P_outer" (or "outer") for the
-    top face's outer edge, else P, its inner edge)."""
+    * block: response ``stretch`` (lateral stretch) or ``displacement`` ((stretch - 1) L, m);
+    * rolled: response ``displacement`` or ``x_P`` (axial displacement of point P, m; geometry
+      h, r, L, mesh (default 1 x 4 x 1, as fit and run), probe "P_outer" (or "outer") for the
+      top face's outer edge, else P, its inner edge);
+    * torsional: response ``angle`` (twist, rad) of the free end (geometry h, L,
+      W, twist (turns), mesh (default 12 x 2 x 2));
+    * uniaxial: response ``stress`` (nominal, Pa) under the trace's measured ``stretch``
+      (quasi-static), with its voltage where the experiment has one (geometry L, W, h)."""
     from dejax import scenarios as sc
     from dejax.material import Material
 
-    channels = {"block": ("stretch", "displacement"), "rolled": ("displacement", "x_P")}
+    channels = {"block": ("stretch", "displacement"), "rolled": ("displacement", "x_P"),
+                "torsional": ("angle", "twist_angle"), "uniaxial": ("stress",)}
     if exp.scenario not in channels:
-        raise NotImplementedError(f"diagnose supports the 'block' and 'rolled' scenarios for now, not '{exp.scenario}'")
+        raise NotImplementedError(f"diagnose: unknown scenario '{exp.scenario}' (known: {', '.join(channels)})")
     g = exp.geometry
     mat = fx.augment_material(Material(**exp.material_kwargs()))
+    uniaxial = exp.scenario == "uniaxial"
     traces = []
     channel = None
     for tr in exp.traces:
@@ -206,23 +232,40 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
         if channel not in (None, ch):
             raise ValueError("all traces must carry the same response channel")
         channel = ch
-        if tr.voltage_history is None:
+        if uniaxial and "stretch" not in tr.channels:
+            raise ValueError(f"trace '{tr.name}': a uniaxial trace needs its 'stretch' channel (the prescribed history)")
+        if not uniaxial and tr.voltage_history is None:
             raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
         traces.append(dataclasses.replace(tr, response=ch))
     pad = max(len(t) for t in traces) - 1
-    common = dict(gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)),
-                  voltage=traces[0].voltage_history)
+    volts = [tr.voltage_history for tr in traces]
+    common = dict(gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)))
+    transform, drive = None, None
     if exp.scenario == "block":
         L = float(g.get("L", g.get("lx", 1e-3)))
-        prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat, **common)
+        prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat, voltage=volts[0], **common)
         output = "lateral_stretch"
         transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
-    else:
+    elif exp.scenario == "rolled":
         point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"  # as `dejax run` reads it
         prob = sc.rolled(mat, h=float(g["h"]), r=float(g["r"]), L=float(g["L"]), shape=tuple(g.get("mesh", (1, 4, 1))),
-                         point=point, **common)
-        output, transform = "x_P", None
-    fwd = Forward(prob, output, rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform)
+                         point=point, voltage=volts[0], **common)
+        output = "x_P"
+    elif exp.scenario == "torsional":
+        h = float(g["h"])
+        prob = sc.torsional(material=mat, thickness=h, length_ratio=float(g["L"]) / h, width_ratio=float(g["W"]) / h,
+                            turns=float(g.get("twist", 1.0)), shape=tuple(g.get("mesh", (12, 2, 2))), **common)
+        prob = dataclasses.replace(prob, loading=it.Loading(voltages=(volts[0],)))
+        output = "twist_angle"
+    else:
+        tr0 = traces[0]
+        has_voltage = any(v is not None for v in volts)
+        prob = sc.uniaxial(loads.PiecewiseLinear(tr0.time, tr0.channels["stretch"]), mat,
+                           voltage=(next(v for v in volts if v is not None) if has_voltage else None),
+                           lx=float(g.get("L", 1e-3)), ly=float(g.get("W", 1e-3)), lz=float(g.get("h", 1e-3)),
+                           shape=tuple(g.get("mesh", (1, 1, 1))), **common)
+        output, drive = "stress", drive_stretch
+    fwd = Forward(prob, output, rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform, drive=drive)
     return fwd, traces
 
 

@@ -4,9 +4,10 @@
   differences (sigma^2 = mean((Delta^4 y)^2) / 70, unbiased for white noise when the signal
   is smooth over 5 samples).
 * ``breakdown(traces, preds)``: the residual (model - measured) per trace and condition,
-  per cycle, loading vs unloading (sign of d phi_command / dt), transient (first cycle) vs
+  per cycle, loading vs unloading (sign of d command / dt), transient (first cycle) vs
   steady state, and per cycle feature (mean, amplitude, phase lag to the command, loop area
-  in the (command, output) plane, 2nd/1st harmonic ratio).
+  in the (command, output) plane, 2nd/1st harmonic ratio). The command is the voltage, or
+  for a stretch-driven (uniaxial) trace the stretch, a loading-unloading trace one cycle.
 * ``rms(x)``; ``gap(rms, sigma)`` = sqrt(max(RMS^2 - sigma^2, 0)).
 """
 from __future__ import annotations
@@ -42,8 +43,8 @@ def breakdown(traces: Sequence[Trace], preds: Sequence[np.ndarray]) -> dict:
     for tr, yp in zip(traces, preds):
         y = tr.y
         r = np.asarray(yp) - y
-        command = np.asarray(tr.voltage_history(jnp.asarray(tr.time)))
-        ids = cycles.trace_cycle_ids(tr.time, tr.frequency)
+        command, freq = _command(tr)
+        ids = cycles.trace_cycle_ids(tr.time, freq)
         du = np.gradient(command, tr.time)
         load = du > 0
         entry = {"name": tr.name, "role": tr.role, "conditions": dict(tr.conditions), "rms": rms(r),
@@ -51,8 +52,8 @@ def breakdown(traces: Sequence[Trace], preds: Sequence[np.ndarray]) -> dict:
                  "per_cycle_rms": [rms(r[ids == c]) for c in range(int(ids.max()) + 1)],
                  "loading_rms": rms(r[load]), "unloading_rms": rms(r[~load]),
                  "transient_rms": rms(r[ids == 0]), "steady_rms": rms(r[ids > 0]) if np.any(ids > 0) else None}
-        fm = cycles.trace_cycle_measures(tr.time, y, command, tr.frequency)
-        fp = cycles.trace_cycle_measures(tr.time, yp, command, tr.frequency)
+        fm = cycles.trace_cycle_measures(tr.time, y, command, freq)
+        fp = cycles.trace_cycle_measures(tr.time, yp, command, freq)
         entry["features"] = {k: {"measured": fm[k].tolist(), "model": fp[k].tolist(),
                                  "gap": (fp[k] - fm[k]).tolist()} for k in fm}
         res["traces"].append(entry)
@@ -65,6 +66,17 @@ def breakdown(traces: Sequence[Trace], preds: Sequence[np.ndarray]) -> dict:
         res["features"][k] = {"rms_gap": rms(gaps), "mean_gap": float(np.mean(gaps)) if gaps.size else 0.0,
                               "relative": rms(gaps) / scale if scale > 0 else None}
     return res
+
+
+def _command(tr: Trace):
+    """The command (n,) a trace is driven by and its frequency (Hz or None): the voltage;
+    for a stretch-driven trace (uniaxial, no voltage) the stretch, the whole trace one cycle
+    (a loading-unloading test) unless its conditions name a frequency."""
+    volt = tr.voltage_history
+    if volt is not None or "stretch" not in tr.channels:
+        return np.asarray(volt(jnp.asarray(tr.time))), tr.frequency
+    span = float(tr.time[-1] - tr.time[0])
+    return np.asarray(tr.channels["stretch"], dtype=float), tr.frequency or (1.0 / span if span > 0 else None)
 
 
 def rms(x) -> float:

@@ -1,10 +1,14 @@
 """fitting.forward: the diagnosis's forward model caches its simulations (sensor effects need
 none), its residuals in normalized parameters and their forward differences, and its
 builders (synthetic traces in closed form, an experiment file's traces)."""
+import dataclasses
 from pathlib import Path
 
+import equinox as eqx
 import numpy as np
 import pytest
+
+from dejax import integrate as it
 
 from fitting import effects as fx
 from fitting import forward as fw
@@ -64,8 +68,45 @@ def test_forward_from_an_experiment_file():
         np.testing.assert_array_equal(t.y, e["stretch"])
     assert fwd.output == "lateral_stretch" and fwd.transform is None
     assert fwd.pad_to == max(len(e) for e in exp.traces) - 1
-    with pytest.raises(NotImplementedError, match="'block' and 'rolled' scenarios for now, not 'uniaxial'"):
-        fw.forward_from_experiment(load_experiment(EXAMPLES / "vhb4910_uniaxial.toml"))
+    with pytest.raises(ValueError, match="needs a 'stress' channel for the uniaxial scenario"):
+        fw.forward_from_experiment(dataclasses.replace(exp, scenario="uniaxial"))
+
+
+def test_uniaxial_experiment_gives_a_stretch_driven_quasi_static_forward():
+    """The shipped uniaxial diagnose example: response stress (Pa) under each trace's own
+    measured stretch, stepped quasi-statically; the voltage effects and added mass do not
+    apply. The moduli's drift (mu_drift) is realised as a gain on the stress: it rests on
+    the stress being homogeneous of degree one in the moduli (viscosities scaled alike), which
+    a simulation with every modulus and viscosity scaled by 1.3 confirms."""
+    exp = load_experiment(EXAMPLES / "uniaxial_diagnose.toml")
+    fwd, traces = fw.forward_from_experiment(exp)
+    assert fwd.output == "stress" and isinstance(fwd.scheme, it.QuasiStatic)
+    assert [t.response for t in traces] == ["stress"] * 3
+    assert set(fx.names(fwd.pieces0)) == {"creep", "hysteresis", "mu_drift", "electrode_stiffness", "sensor_offset",
+                                          "sensor_drift", "sensor_latency"}
+    tr = traces[1]  # 0.03 1/s: stretch 1 -> 2 -> 1 over 66.7 s
+    y0 = fwd.predict({}, tr)
+    assert 2e4 < y0.max() < 5e4 and abs(np.argmax(y0) - len(y0) // 2) <= 1  # peak stress at peak stretch
+    rate = 2e-3
+    np.testing.assert_allclose(fwd.predict({"mu_drift": {"rate": rate}}, tr), (1 + rate * tr.time) * y0, rtol=1e-12)
+    m = fwd.pieces0.model.material
+    scaled = eqx.tree_at(lambda x: (x.mu_inf, x.K_inf, x.mu, x.K, x.eta), m,
+                         (1.3 * m.mu_inf, 1.3 * m.K_inf, 1.3 * m.mu, 1.3 * m.K, 1.3 * m.eta))
+    model = eqx.tree_at(lambda md: md.material, fwd.pieces0.model, scaled)
+    sol = it.simulate(model, fw.drive_stretch(fwd.pieces0.loading, tr), tr.time, fwd.problem.output_fn,
+                      it.QuasiStatic(), fwd.newton, control=None)
+    np.testing.assert_allclose(np.asarray(sol.outputs["stress"]), 1.3 * y0, rtol=1e-7, atol=1e-6 * y0.max())
+    # sensor offsets of a stress are in kPa
+    np.testing.assert_allclose(fwd.predict({"sensor_offset": {"c": 0.5}}, tr), y0 + 500.0, rtol=1e-12)
+
+
+def test_torsional_experiment_gives_a_voltage_driven_twist_forward():
+    exp = load_experiment(EXAMPLES / "torsional_diagnose.toml")
+    fwd, traces = fw.forward_from_experiment(exp)
+    assert fwd.output == "twist_angle" and [t.response for t in traces] == ["angle"] * 3
+    assert np.deg2rad(10.0) < max(traces[0].y) < np.deg2rad(30.0)  # tens of degrees, in rad
+    assert {"voltage_lag", "leakage", "added_mass"} <= set(fx.names(fwd.pieces0))
+    assert "prestress" not in fx.names(fwd.pieces0)
 
 
 def test_rolled_experiment_gives_a_tube_forward_with_an_axial_preload():
