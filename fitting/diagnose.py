@@ -26,7 +26,9 @@ viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Tr
     Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
     forward-difference Jacobian, Broyden-updated between its evaluations, so the one
     compiled ``simulate`` is reused), and ranked:
-    significant effects first (Delta BIC < -``bic_threshold``), within them by the holdout
+    significant effects first (Delta BIC < -``bic_threshold``, and a holdout RMS not above
+    the baseline's by more than its sampling sd 1/sqrt(2 n_hold): an effect that improves
+    the fit traces but worsens the withheld ones explains nothing), within them by the holdout
     RMS; the screened-out ones follow with their linearized figures, never chosen.
     Gauss-Newton standard errors s^2 (J^T J)^-1 at the optimum.
 (c) HOW FAR: RMS and "gap" = sqrt(max(RMS^2 - sigma^2, 0)) before/after, on fit and
@@ -78,6 +80,7 @@ class CandidateResult:
     n_sims: int
     seconds: float
     significant: bool = False
+    worse_on_holdout: bool = False  # its holdout RMS exceeds the baseline's (beyond sampling)
     fitted: bool = True  # False: screened out (its figures are the screening's linearized ones)
 
     def as_dict(self):
@@ -111,6 +114,8 @@ class Diagnosis:
             hold = f"{c['rms_holdout']:.3e}" if c["rms_holdout"] is not None else "-"
             if not c.get("fitted", True):
                 pv += "  (screened out; linearized at the baseline)"
+            if c.get("worse_on_holdout"):
+                pv += "  (worse than the baseline on the withheld traces: no explanation)"
             lines.append(f"{i + 1:>4} {c['name']:<20} {c['k']:>2} {c['d_bic']:>9.1f} {c['d_aic']:>9.1f} "
                          f"{c['rms_fit']:>10.3e} {hold:>10} {'*' if c['significant'] else '':>3}  {pv}")
         b = self.baseline
@@ -156,6 +161,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     sse0 = float(r0 @ r0)
     aic0, bic0 = criteria(sse0, n, 0)
     rms_h0 = rms(np.concatenate([base_pred[tr.name] - tr.y for tr in hold])) if hold else None
+    n_hold = int(sum(len(tr) for tr in hold))
     baseline = {"sse_fit": sse0, "rms_fit": rms(r0), "rms_holdout": rms_h0, "aic": aic0, "bic": bic0}
     chi = (sse0 / n) / sigma ** 2 if sigma > 0 else float("inf")
     chi_lim = 1.0 + z * math.sqrt(2.0 / n)
@@ -220,6 +226,10 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
         # a pair must also beat each of its fitted singles by the threshold (nested models)
         singles_bic = [r.bic for r in results if r.fitted and r.name in g and len(g) > 1]
         c.significant = c.d_bic < -bic_threshold and all(c.bic < b - bic_threshold for b in singles_bic)
+        # an effect that improves the fit traces but worsens the withheld ones (beyond the
+        # RMS's sampling sd) is no explanation
+        c.worse_on_holdout = rh is not None and rh > rms_h0 * (1.0 + 1.0 / math.sqrt(2.0 * n_hold))
+        c.significant = c.significant and not c.worse_on_holdout
         results.append(c)
         if verbose:
             rh_text = "-" if rh is None else f"{rh:.3e}"

@@ -25,9 +25,9 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
     """Bounded Levenberg-Marquardt (``fitting.least_squares``) over the parameters of the
     effects ``names``, normalised to [0, 1] in lin or log scale, with a forward-difference
     Jacobian at the start and the solution, Broyden-updated between them (so the one
-    compiled ``simulate`` is reused); others in ``fixed`` held. Starts from the better of
-    the off values, the effects' start values and ``z0`` (e.g. the screening's linearized
-    optimum). At most ``max_iter`` evaluations
+    compiled ``simulate`` is reused); others in ``fixed`` held. Starts from the best of
+    the off values, the effects' start values, ``z0`` (e.g. the screening's linearized
+    optimum) and the effects' starts read off the traces (``Effect.starts``). At most ``max_iter`` evaluations
     besides the Jacobians'; stops when an accepted step lowers the SSE by less than
     ``rtol`` (relative). Returns (values, stderr, sse, J)."""
     fixed = dict(fixed or {})
@@ -45,6 +45,14 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
              for src in ("off", "start")]
     if z0 is not None:
         cands.append(np.clip(np.asarray(z0, dtype=float), 0.0, 1.0))
+    # an effect may read further starts off the traces (a threshold effect, such as a slew
+    # limit, has no slope where it does not act: it starts where it begins to act)
+    for j, (n, p) in enumerate(plist):
+        for st in fx.get(n).starts(traces):
+            if p.name in st:
+                z = cands[1].copy()
+                z[j] = p.z_of(st[p.name])
+                cands.append(z)
     best_z, best_sse = None, np.inf
     for z, r in zip(cands, resid_many(cands)):
         if r @ r < best_sse:

@@ -23,6 +23,8 @@ name                parameters (SI)                             realisation
 creep               mu (Pa), tau (s) ~ 0.5-50 s                 extra slow Gent viscous unit
 hysteresis          mu (Pa), tau (s) ~ 1e-3-0.5 s               extra fast Gent viscous unit
 voltage_lag         tau (s)                                     first-order RC filter command->electrode
+amplifier_slew      rate (V/s)                                  electrode voltage follows the command at
+                                                                most at this rate (``slew_limited``)
 leakage             frac (-), tau (s)                           field screening by leakage/space charge
 mu_drift            rate (1/s)                                  moduli x (1 + rate t) (temperature drift)
 electrostriction    eps_b (-), eps_a (-)                        eps(1 + eps_b(lambda_E - 1) + eps_a(I1bar - 3))
@@ -58,8 +60,9 @@ from dejax import integrate as it
 from dejax.material import Material
 
 __all__ = [
-    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "EFFECTS", "UNAVAILABLE",
-    "get", "names", "applies", "augment_material", "make_pieces", "apply_effects", "from_experiment", "param_list", "values_at",
+    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "SLEW_OFF", "EFFECTS",
+    "UNAVAILABLE", "get", "names", "applies", "augment_material", "make_pieces", "apply_effects", "from_experiment",
+    "param_list", "values_at",
 ]
 
 DORMANT = 1e-9  # shear modulus of a dormant viscous unit, relative to mu_inf
@@ -88,6 +91,29 @@ def lowpass(history, tau, t):
     return jnp.where(tau <= 1e-9, history(t), y)
 
 
+SLEW_OFF = 1e9
+"""Slew rate (V/s) that stands for an unlimited amplifier: 1e9 V/s is 400 times a 25 kV sine's
+steepest rate at 100 Hz (a slew rate at or above it is not applied)."""
+
+
+def slew_limited(history, rate: float, times, substeps: int = 16) -> np.ndarray:
+    """The output (n,) at ``times`` of an amplifier whose output follows the command
+    ``history`` (t -> V) at most at ``rate`` (V/s), starting on the command at times[0]:
+    v' = phi' where |v - phi| = 0 and |phi'| <= rate, else v moves towards phi at the full
+    rate. Integrated exactly for a command linear within each of ``substeps`` sub-intervals
+    per sample interval (error at most rate x sub-interval where the limit starts to act)."""
+    t = np.asarray(times, dtype=float)
+    k = max(int(substeps), 1)
+    fine = np.concatenate([np.linspace(a, b, k + 1)[:-1] for a, b in zip(t[:-1], t[1:])] + [t[-1:]])
+    phi = np.asarray(history(jnp.asarray(fine)), dtype=float)
+    v = np.empty_like(phi)
+    v[0] = phi[0]
+    step = rate * np.diff(fine)
+    for i in range(1, phi.size):
+        v[i] = v[i - 1] + min(max(phi[i] - v[i - 1], -step[i - 1]), step[i - 1])
+    return v[::k]
+
+
 class EffectiveVoltage(eqx.Module):
     """Electrode voltage seen by the film, from the commanded history ``base``:
 
@@ -109,13 +135,15 @@ class EffectiveVoltage(eqx.Module):
     frac: jax.Array
     tau_leak: jax.Array
     mu_drift: jax.Array
+    slew_rate: jax.Array  # V/s; not applied here: fitting.forward.drive_voltage slews the command
 
-    def __init__(self, base, lag=0.0, frac=0.0, tau_leak=1.0, mu_drift=0.0):
+    def __init__(self, base, lag=0.0, frac=0.0, tau_leak=1.0, mu_drift=0.0, slew_rate=SLEW_OFF):
         self.base = base
         self.lag = jnp.asarray(lag, dtype=float)
         self.frac = jnp.asarray(frac, dtype=float)
         self.tau_leak = jnp.asarray(tau_leak, dtype=float)
         self.mu_drift = jnp.asarray(mu_drift, dtype=float)
+        self.slew_rate = jnp.asarray(slew_rate, dtype=float)
 
     def __call__(self, t):
         ve = lowpass(self.base, self.lag, t)
@@ -168,6 +196,7 @@ class Param:
     scale: str = "lin"
     unit: str = "-"
     doc: str = ""
+    probe: bool = False  # a threshold: screened by the secant from off to its data start (no slope at off)
 
     def _span(self) -> tuple[float, float]:
         lo, hi = self.bounds
@@ -203,6 +232,12 @@ class Effect:
     kind: str = "model"  # "model" (needs a new simulation) or "sensor" (output transform only)
     needs: tuple[str, ...] = ()  # what the scenario must have: "voltage", "inertia", "prestress_load"
     on_sensor: bool = False  # a model effect that also acts on the sensor (mu_drift on a stress)
+    # extra starting values read off the traces (a threshold effect starts where it acts)
+    data_starts: Callable[[Sequence], list] | None = None
+
+    def starts(self, traces) -> list[dict]:
+        """Starting values from the data (``data_starts``; none by default)."""
+        return [] if self.data_starts is None else list(self.data_starts(traces))
 
     @property
     def acts_on_sensor(self) -> bool:
@@ -269,6 +304,22 @@ def _leak(p, v):
                                                    jnp.asarray(v["tau"], dtype=float))))
 
 
+def _slew(p, v):
+    return _map_voltages(p, lambda h: eqx.tree_at(lambda e: e.slew_rate, h, jnp.asarray(v["rate"], dtype=float)))
+
+
+def _slew_starts(traces) -> list[dict]:
+    """Slew rates at 0.8, 0.5 and 0.25 of the steepest commanded rate of ``traces`` (V/s),
+    where a slew limit begins to act."""
+    rates = []
+    for tr in traces:
+        v = tr.voltage()
+        if v is not None and tr.time is not None and len(tr.time) > 1:
+            rates.append(float(np.max(np.abs(np.gradient(np.asarray(v, dtype=float), tr.time)))))
+    top = max(rates, default=0.0)
+    return [{"rate": f * top} for f in (0.8, 0.5, 0.25)] if top > 0 else []
+
+
 def _mu_drift(p, v):
     rate = jnp.asarray(v["rate"], dtype=float)
     p = _map_voltages(p, lambda h: eqx.tree_at(lambda e: e.mu_drift, h, rate))
@@ -332,6 +383,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("voltage_lag", (Param("tau", 0.0, (0.0, 0.2), 0.0, unit="s", doc="RC time constant"),),
            _lag, "first-order lag between commanded and electrode voltage (source/electrode resistance x capacitance)",
            needs=("voltage",)),
+    Effect("amplifier_slew", (Param("rate", SLEW_OFF, (1e4, SLEW_OFF), 1e5, "log", "V/s",
+                                    "largest rate of change of the amplifier's output", probe=True),),
+           _slew, "slew-rate limit of the high-voltage amplifier: the electrode voltage follows the command at "
+           "most at this rate (a sine's steepest parts turned into ramps at high frequency and voltage)",
+           needs=("voltage",), data_starts=_slew_starts),
     Effect("leakage", (Param("frac", 0.0, (0.0, 0.6), 0.0, doc="screened fraction of the field at steady state"),
                        Param("tau", 2.0, (0.05, 50.0), 2.0, "log", "s", "charging time of the screening layer")),
            _leak, "leakage current / charge injection: effective field decays under constant voltage",

@@ -153,9 +153,20 @@ class Forward:
                 for i in range(len(effects_list))]
 
 
+def _command(loading: it.Loading, trace: Trace):
+    """``trace``'s commanded voltage history, slew-limited (``effects.slew_limited``, sampled on
+    the trace's times) where the loading's EffectiveVoltage has a slew rate below
+    ``effects.SLEW_OFF``."""
+    volt = trace.voltage_history
+    rate = float(getattr(loading.voltages[0], "slew_rate", fx.SLEW_OFF))
+    if volt is None or rate >= fx.SLEW_OFF:
+        return volt
+    return loads.PiecewiseLinear(trace.time, fx.slew_limited(volt, rate, trace.time))
+
+
 def drive_voltage(loading: it.Loading, trace: Trace) -> it.Loading:
     """The loading under ``trace``'s commanded voltage (the first voltage channel's history)."""
-    return eqx.tree_at(lambda l: l.voltages[0].base, loading, trace.voltage_history)
+    return eqx.tree_at(lambda l: l.voltages[0].base, loading, _command(loading, trace))
 
 
 def drive_stretch(loading: it.Loading, trace: Trace) -> it.Loading:
@@ -165,7 +176,7 @@ def drive_stretch(loading: it.Loading, trace: Trace) -> it.Loading:
                           loads.PiecewiseLinear(trace.time, trace.channels["stretch"]))
     if not loading.voltages:
         return loading
-    volt = trace.voltage_history
+    volt = _command(loading, trace)
     return eqx.tree_at(lambda l: l.voltages[0].base, loading, loads.Constant(0.0) if volt is None else volt)
 
 
@@ -185,10 +196,11 @@ FD_STEP = 1e-3
 [0, 1] (one-sided, into the box)."""
 
 
-def fd_jacobian(resid_many, z, r, h: float = FD_STEP) -> np.ndarray:
-    """(m, k) forward differences at z (backward where z + h leaves [0, 1]);
-    ``resid_many(list of z) -> list of residuals`` evaluates the k points together."""
-    steps = np.where(z + h <= 1.0, h, -h)
+def fd_jacobian(resid_many, z, r, h: float = FD_STEP, steps=None) -> np.ndarray:
+    """(m, k) forward differences at z (backward where z + h leaves [0, 1]), or with the
+    given ``steps`` (k,) per parameter; ``resid_many(list of z) -> list of residuals``
+    evaluates the k points together."""
+    steps = np.where(z + h <= 1.0, h, -h) if steps is None else np.asarray(steps, dtype=float)
     points = []
     for j in range(z.size):
         zz = z.copy()

@@ -3,7 +3,8 @@ which pairs, the baseline residuals point to, before any is fitted.
 
 One forward-difference column of the fit residuals per effect parameter, in the normalized
 parameters z (``fitting.effects``; a simulation per model-effect parameter, none for a
-sensor effect: ``fitting.forward.fd_jacobian``), then for every candidate and every pair
+sensor effect: ``fitting.forward.fd_jacobian``; a threshold parameter, ``Param.probe``, by
+the secant from off to where it begins to act, ``Effect.starts``), then for every candidate and every pair
 the bounded linear least-squares fit of the baseline residuals on its columns: the step
 ``z``, the SSE the first-order model predicts and the BIC change that SSE would give
 (``criteria``: Gaussian AIC and BIC of ``fitting.selection``).
@@ -16,7 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from . import effects as fx
-from .forward import Forward, fd_jacobian, residuals_at
+from .forward import FD_STEP, Forward, fd_jacobian, residuals_at
 from .selection import information_criteria
 from .traces import Trace
 
@@ -54,7 +55,17 @@ def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0:
     z_off = np.array([p.z_of(p.off) for _, p in plist])
     resid_many = residuals_at(fwd, candidates, traces)
     r_off = resid_many([z_off])[0]  # the baseline (its simulations cached)
-    J = fd_jacobian(resid_many, z_off, r_off)
+    # a threshold effect (Param.probe: the amplifier's slew limit acts only below the command's
+    # own rate) has no slope at off: its column is the secant from off to its middle data start
+    # (else its start value)
+    def step(name, p, z0):
+        if not p.probe:
+            return FD_STEP if z0 + FD_STEP <= 1.0 else -FD_STEP
+        starts = [st[p.name] for st in fx.get(name).starts(traces) if p.name in st]
+        return p.z_of(starts[len(starts) // 2] if starts else p.start) - z0
+
+    steps = np.array([step(name, p, z0) for (name, p), z0 in zip(plist, z_off)])
+    J = fd_jacobian(resid_many, z_off, r_off, steps=steps)
     n = r0.size
     sse0 = float(r0 @ r0)
     _, bic0 = criteria(sse0, n, 0)

@@ -141,3 +141,32 @@ def test_mu_drift_is_the_equivalent_field_scaling():
         b = models.gent_equibiaxial_stretch(phi, 1e-3, 67e3 * s, 15.0, 4e-11)
         assert a == pytest.approx(b, rel=1e-10) and a > 1.0
     assert fx.get("mu_drift").off() == {"rate": 0.0}
+
+
+def test_slew_limited_follows_the_command_up_to_the_rate():
+    """A sine phi = A sin(w t) (steepest rate A w at t = 0) through an amplifier of slew rate
+    S < A w, on the command at t = 0. Closed form over the first half period: a ramp S t
+    until it meets the sine (t_m), the sine while its slope is within S, then from
+    t3 = (pi - arccos(S / (A w))) / w a ramp down at S (still above the sine at the half
+    period). And an amplifier faster than the command is the command."""
+    from scipy.optimize import brentq
+
+    A, f, S = 10e3, 50.0, 1.5e6  # V, Hz, V/s (A w = 3.14e6 V/s)
+    w = 2 * np.pi * f
+    t = np.linspace(0.0, 1.0 / (2 * f), 401)
+    hist = lambda s: A * jnp.sin(w * s)  # noqa: E731
+    v = fx.slew_limited(hist, S, t, substeps=32)
+    t_m = brentq(lambda s: A * np.sin(w * s) - S * s, 1e-6, 0.5 / f)
+    t3 = (np.pi - np.arccos(S / (A * w))) / w
+    ref = np.where(t <= t_m, S * t, np.where(t <= t3, A * np.sin(w * t), A * np.sin(w * t3) - S * (t - t3)))
+    assert np.max(np.abs(v - ref)) < S * (t[1] - t[0]) / 32
+    assert np.max(np.abs(np.diff(v)) / np.diff(t)) <= S * (1 + 1e-12)
+    np.testing.assert_allclose(fx.slew_limited(hist, fx.SLEW_OFF, t), np.asarray(hist(jnp.asarray(t))), rtol=0,
+                               atol=1e-12 * A)
+
+
+def test_amplifier_slew_is_screened_by_its_secant():
+    """A threshold effect: no slope at off (the limit acts only below the command's rate), so
+    the screening's column is the secant from off to the start value."""
+    (p,) = fx.get("amplifier_slew").params
+    assert p.probe and p.off == fx.SLEW_OFF and p.z_of(p.off) == 1.0 and p.start < p.off
