@@ -60,7 +60,7 @@ from dejax import integrate as it
 from dejax.material import Material
 
 __all__ = [
-    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "SLEW_OFF", "EFFECTS",
+    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "slew_active", "SLEW_OFF", "EFFECTS",
     "UNAVAILABLE", "get", "names", "applies", "augment_material", "make_pieces", "apply_effects", "from_experiment",
     "param_list", "values_at",
 ]
@@ -96,14 +96,19 @@ SLEW_OFF = 1e9
 steepest rate at 100 Hz (a slew rate at or above it is not applied)."""
 
 
-def slew_limited(history, rate: float, times, substeps: int = 16) -> np.ndarray:
-    """The output (n,) at ``times`` of an amplifier whose output follows the command
-    ``history`` (t -> V) at most at ``rate`` (V/s), starting on the command at times[0]:
-    v' = phi' where |v - phi| = 0 and |phi'| <= rate, else v moves towards phi at the full
-    rate. Integrated exactly for a command linear within each of ``substeps`` sub-intervals
-    per sample interval (error at most rate x sub-interval where the limit starts to act)."""
+def slew_limited(history, rate: float, times, substeps: int = 16, knots: int = 4):
+    """An amplifier whose output follows the command ``history`` (t -> V) at most at ``rate``
+    (V/s), starting on the command at times[0]: v' = phi' while v = phi and |phi'| <= rate,
+    else v moves towards phi at the full rate. Integrated exactly for a command linear within
+    each of ``substeps`` sub-intervals per interval of ``times`` (error at most rate x
+    sub-interval where the limit starts to act). Returns (grid, v): the output on ``knots``
+    points per interval of ``times`` (a history linear between them stays within
+    (interval / knots)^2 |phi''| / 8 of it)."""
     t = np.asarray(times, dtype=float)
     k = max(int(substeps), 1)
+    m = max(min(int(knots), k), 1)
+    while k % m:
+        k += 1
     fine = np.concatenate([np.linspace(a, b, k + 1)[:-1] for a, b in zip(t[:-1], t[1:])] + [t[-1:]])
     phi = np.asarray(history(jnp.asarray(fine)), dtype=float)
     v = np.empty_like(phi)
@@ -111,7 +116,12 @@ def slew_limited(history, rate: float, times, substeps: int = 16) -> np.ndarray:
     step = rate * np.diff(fine)
     for i in range(1, phi.size):
         v[i] = v[i - 1] + min(max(phi[i] - v[i - 1], -step[i - 1]), step[i - 1])
-    return v[::k]
+    return fine[:: k // m], v[:: k // m]
+
+
+def slew_active(rate) -> bool:
+    """True if the slew rate ``rate`` (V/s) limits (below ``SLEW_OFF``, to round-off)."""
+    return float(rate) < SLEW_OFF * (1.0 - 1e-9)
 
 
 class EffectiveVoltage(eqx.Module):

@@ -154,14 +154,14 @@ class Forward:
 
 
 def _command(loading: it.Loading, trace: Trace):
-    """``trace``'s commanded voltage history, slew-limited (``effects.slew_limited``, sampled on
-    the trace's times) where the loading's EffectiveVoltage has a slew rate below
-    ``effects.SLEW_OFF``."""
+    """``trace``'s commanded voltage history, slew-limited (``effects.slew_limited``, linear
+    between four points per sample interval) where the loading's EffectiveVoltage has a
+    slew rate that limits (``effects.slew_active``)."""
     volt = trace.voltage_history
-    rate = float(getattr(loading.voltages[0], "slew_rate", fx.SLEW_OFF))
-    if volt is None or rate >= fx.SLEW_OFF:
+    rate = getattr(loading.voltages[0], "slew_rate", fx.SLEW_OFF)
+    if volt is None or not fx.slew_active(rate):
         return volt
-    return loads.PiecewiseLinear(trace.time, fx.slew_limited(volt, rate, trace.time))
+    return loads.PiecewiseLinear(*fx.slew_limited(volt, float(rate), trace.time))
 
 
 def drive_voltage(loading: it.Loading, trace: Trace) -> it.Loading:

@@ -155,14 +155,18 @@ def test_slew_limited_follows_the_command_up_to_the_rate():
     w = 2 * np.pi * f
     t = np.linspace(0.0, 1.0 / (2 * f), 401)
     hist = lambda s: A * jnp.sin(w * s)  # noqa: E731
-    v = fx.slew_limited(hist, S, t, substeps=32)
+    grid, v = fx.slew_limited(hist, S, t, substeps=32, knots=1)
+    np.testing.assert_array_equal(grid, t)
     t_m = brentq(lambda s: A * np.sin(w * s) - S * s, 1e-6, 0.5 / f)
     t3 = (np.pi - np.arccos(S / (A * w))) / w
     ref = np.where(t <= t_m, S * t, np.where(t <= t3, A * np.sin(w * t), A * np.sin(w * t3) - S * (t - t3)))
     assert np.max(np.abs(v - ref)) < S * (t[1] - t[0]) / 32
     assert np.max(np.abs(np.diff(v)) / np.diff(t)) <= S * (1 + 1e-12)
-    np.testing.assert_allclose(fx.slew_limited(hist, fx.SLEW_OFF, t), np.asarray(hist(jnp.asarray(t))), rtol=0,
-                               atol=1e-12 * A)
+    grid, v_off = fx.slew_limited(hist, fx.SLEW_OFF, t)
+    assert grid.size == 4 * (t.size - 1) + 1 and grid[4] == t[1]
+    np.testing.assert_allclose(v_off, np.asarray(hist(jnp.asarray(grid))), rtol=0, atol=1e-12 * A)
+    p = fx.get("amplifier_slew").params[0]
+    assert not fx.slew_active(p.from_z(1.0)) and fx.slew_active(p.from_z(1.0 - 1e-3))
 
 
 def test_amplifier_slew_is_screened_by_its_secant():
