@@ -930,7 +930,8 @@ def _run_fixed(model, loading, s0, times, active, *, output_fn, scheme, newton, 
     step = make_step(scheme, newton, solver)
     budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0]))
     carry = initial_carry(model, s0, step.solver, budget)
-    carry, (outs, its, nfac, ncut, last) = make_scan(step, output_fn, control, remat=True)(model, loading, carry, times, active)
+    run = make_scan(step, output_fn, control, remat=True)
+    carry, (outs, its, nfac, ncut, last) = run(model, loading, carry, times, active)
     return dict(outputs=outs, iterations=its, factorizations=nfac, cutbacks=ncut, status=carry.status,
                 fail_step=carry.fail_step, final=carry.state, dt_smallest=carry.h_smallest, schedule=carry.schedule,
                 n_sub=carry.n_sub, last=last, last_good=carry.last_good)

@@ -27,8 +27,8 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
     Jacobian at the start and the solution, Broyden-updated between them (so the one
     compiled ``simulate`` is reused); others in ``fixed`` held. Starts from the best of
     the off values, the effects' start values, ``z0`` (e.g. the screening's linearized
-    optimum) and the effects' starts read off the traces (``Effect.starts``). At most ``max_iter`` evaluations
-    besides the Jacobians'; stops when an accepted step lowers the SSE by less than
+    optimum) and the effects' starts read off the traces (``Effect.starts``). At most
+    ``max_iter`` evaluations besides the Jacobians'; stops when an accepted step lowers the SSE by less than
     ``rtol`` (relative). Returns (values, stderr, sse, J)."""
     fixed = dict(fixed or {})
     start = dict(start or {})

@@ -60,9 +60,9 @@ from dejax import integrate as it
 from dejax.material import Material
 
 __all__ = [
-    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "slew_active", "SLEW_OFF", "EFFECTS",
-    "UNAVAILABLE", "get", "names", "applies", "augment_material", "make_pieces", "apply_effects", "from_experiment",
-    "param_list", "values_at",
+    "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "slew_active", "SLEW_OFF",
+    "EFFECTS", "UNAVAILABLE", "get", "names", "applies", "augment_material", "make_pieces", "apply_effects",
+    "from_experiment", "param_list", "values_at",
 ]
 
 DORMANT = 1e-9  # shear modulus of a dormant viscous unit, relative to mu_inf

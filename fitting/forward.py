@@ -245,7 +245,8 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
             raise ValueError("all traces must carry the same response channel")
         channel = ch
         if uniaxial and "stretch" not in tr.channels:
-            raise ValueError(f"trace '{tr.name}': a uniaxial trace needs its 'stretch' channel (the prescribed history)")
+            raise ValueError(f"trace '{tr.name}': a uniaxial trace needs its 'stretch' channel "
+                             "(the prescribed history)")
         if not uniaxial and tr.voltage_history is None:
             raise ValueError(f"trace '{tr.name}': no voltage column and no loading table")
         traces.append(dataclasses.replace(tr, response=ch))

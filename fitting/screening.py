@@ -4,7 +4,8 @@ which pairs, the baseline residuals point to, before any is fitted.
 One forward-difference column of the fit residuals per effect parameter, in the normalized
 parameters z (``fitting.effects``; a simulation per model-effect parameter, none for a
 sensor effect: ``fitting.forward.fd_jacobian``; a threshold parameter, ``Param.probe``, by
-the secant from off to where it begins to act, ``Effect.starts``), then for every candidate and every pair
+the secant from off to where it begins to act, ``Effect.starts``), then for every candidate
+and every pair
 the bounded linear least-squares fit of the baseline residuals on its columns: the step
 ``z``, the SSE the first-order model predicts and the BIC change that SSE would give
 (``criteria``: Gaussian AIC and BIC of ``fitting.selection``).

@@ -2,8 +2,9 @@
 
 Fast tests use an analytic forward model (``helpers.AnalyticForward``: closed-form
 quasi-static response y = 1 + k u_e(t)^2 / (1 + rel), u_e the lagged command), so the
-diagnosis logic is checked in seconds; the simulation-based end-to-end check is in the slow
-tier, ``pytest --runslow`` (it compiles the block simulation: ~1-2 min on a shared CPU)."""
+diagnosis logic is checked in seconds; the block-simulation checks (voltage lag, amplifier slew)
+are in the slow tier, ``pytest --runslow`` (each compiles the block simulation: ~1 min from a
+cold compilation cache); the uniaxial example runs in the default tier."""
 import argparse
 import json
 import os
@@ -139,6 +140,7 @@ def test_uniaxial_example_names_the_missing_slow_unit():
     assert loop[0] > 10 * loop[1]  # the hysteresis loop in the (stretch, stress) plane
 
 
+@pytest.mark.slow
 def test_block_simulation_identifies_an_amplifier_slew_limit():
     """A threshold effect: traces of the block whose amplifier slews at most 2e5 V/s (the 16 kV,
     8 Hz command needs 4e5 V/s). It has no slope at off, so screening takes the secant to
