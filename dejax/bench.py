@@ -6,6 +6,8 @@ Cases (issue 6):
   R2  rolled tube 12 x 20 x 4, same loading (the paper's run)
   G1  forward-mode derivative of R1's mean x_P over the last cycle with respect to
       Model IV's nine parameters and h, L, r
+  G1R the same derivative by one reverse pass (jax.grad); beside G1, their largest
+      difference relative to the largest component
   S1  R1's loading at five mesh sizes from 4 x 8 x 1 to 12 x 20 x 4: the exponent of
       run time per step against coordinates
   F1  ``dejax fit data/examples/vhb4910_uniaxial.toml``, as a user runs it: wall time
@@ -144,13 +146,14 @@ def case_R(name, shape, max_steps=None, dt=1e-4, cycles=10, solver="auto", newto
                      f"tube-{mesh}-IV-50kV-30Hz" if reference else None)
 
 
-def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1)):
-    """jacfwd of the last-cycle mean x_P w.r.t. 12 parameters (9 material + h, L, r),
-    against the forward run as R1 makes it (with step cut-back allowed). The derivative is
-    taken on the user's grid (``control=None``): R1 takes no cut-back, so it is the
-    derivative of the same run (equal to the replayed one to round-off, measured), in one
-    pass instead of a forward run plus a replay of its accepted sub-steps (12 % less on
-    100 steps of R1)."""
+def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False):
+    """jacfwd (``reverse``: jax.grad, one reverse pass) of the last-cycle mean x_P w.r.t. 12
+    parameters (9 material + h, L, r), against the forward run as R1 makes it (with step
+    cut-back allowed). The derivative is taken on the user's grid (``control=None``): R1
+    takes no cut-back, so it is the derivative of the same run (equal to the replayed one
+    to round-off, measured), in one pass instead of a forward run plus a replay of its
+    accepted sub-steps (12 % less on 100 steps of R1). The row carries the derivative
+    (``gradient``) so that G1 and G1R can be compared."""
     t_end = cycles / 30.0
     times = it.time_grid(t_end, dt)
     n_full = times.size - 1
@@ -170,22 +173,24 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1)):
 
     theta0 = jnp.concatenate([base.mu_inf[None], base.mu, base.eta, jnp.array([2e-3, 8e-3, 2e-3])])
     f = jax.jit(lambda th: mean_last_cycle(th, it.StepControl()))
-    g = jax.jit(jax.jacfwd(mean_last_cycle))
+    g = jax.jit(jax.grad(mean_last_cycle) if reverse else jax.jacfwd(mean_last_cycle))
     tic = time.perf_counter()
     lowered = g.lower(theta0).compile()
     compile_s = time.perf_counter() - tic
     tic = time.perf_counter()
-    jax.block_until_ready(lowered(theta0))
+    grad = np.asarray(jax.block_until_ready(lowered(theta0)))
     grad_s = time.perf_counter() - tic
     fc = f.lower(theta0).compile()
     tic = time.perf_counter()
     jax.block_until_ready(fc(theta0))
     fwd_s = time.perf_counter() - tic
     scale = n_full / n
-    return dict(case=f"G1 jacfwd 12 params, tube {'x'.join(map(str, shape))}", coordinates=None, unknowns=None,
+    name = "G1R grad (reverse)" if reverse else "G1 jacfwd"
+    return dict(case=f"{name} 12 params, tube {'x'.join(map(str, shape))}", coordinates=None, unknowns=None,
                 solver="DenseSolver", steps=n_full, steps_run=n, compile_s=compile_s, run_s=grad_s * scale,
                 projected=n < n_full, steps_per_s=n / grad_s, newton_mean=float("nan"), newton_max=0,
-                factorizations=0, peak_mb=_peak_rss_mb(), status=0, ratio_to_forward=grad_s / fwd_s)
+                factorizations=0, peak_mb=_peak_rss_mb(), status=0, ratio_to_forward=grad_s / fwd_s,
+                gradient=grad.tolist())
 
 
 S1_SHAPES = ((4, 8, 1), (6, 10, 2), (8, 12, 2), (10, 16, 3), (12, 20, 4))
@@ -391,9 +396,13 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
             rows.append(case_R("R1", (4, 8, 1), max_steps, dt, solver=solver, newton=newton, reference=reference))
         elif c == "R2":
             rows.append(case_R("R2", (12, 20, 4), max_steps, dt, solver=solver, newton=newton, reference=reference))
-        elif c == "G1":
-            rows.append(case_G1(max_steps, dt))
-            extra["G1_over_forward"] = rows[-1]["ratio_to_forward"]
+        elif c in ("G1", "G1R"):
+            rows.append(case_G1(max_steps, dt, reverse=c == "G1R"))
+            extra[f"{c}_over_forward"] = rows[-1]["ratio_to_forward"]
+            grads = {r["case"].split()[0]: np.asarray(r["gradient"]) for r in rows if "gradient" in r}
+            if len(grads) == 2:  # reverse against forward mode, relative to the largest component
+                extra["G1R_vs_G1_max_rel"] = float(np.max(np.abs(grads["G1R"] - grads["G1"]))
+                                                   / np.max(np.abs(grads["G1"])))
         elif c == "S1":
             srows, slope = case_S1(max_steps or 50, dt)
             rows += srows
@@ -413,7 +422,7 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
             rows.append(case_D1())
             sys.stderr.write(f"  D1 verdict: {rows[-1]['verdict']}\n")
         else:
-            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 S1 N1 F1 D1 robust")
+            raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 G1R S1 N1 F1 D1 robust")
     if rows:
         print(format_table(rows))
     for k, v in extra.items():
@@ -429,7 +438,8 @@ def register(sub):
     p = sub.add_parser("bench", help="timing benchmark (cases B1 R1 R2 G1 S1 F1 D1) and the robustness matrix, "
                                      "table + JSON")
     p.add_argument("--cases", default="B1,R1,R2,G1,S1",
-                   help="comma-separated subset of B1,R1,R2,G1,S1,N1,F1,D1, or robust (the solver robustness matrix); "
+                   help="comma-separated subset of B1,R1,R2,G1,G1R,S1,N1,F1,D1, or robust (the solver robustness "
+                        "matrix); G1R is G1 by one reverse pass (jax.grad), compared with G1 when both run; "
                         "F1 and D1 time whole dejax fit / diagnose commands, N1 one Newton iteration of R2 beside "
                         "FElupe's cube (when FElupe is installed)")
     p.add_argument("--select", default="", help="robust: keep the cases whose name contains one of these "

@@ -10,7 +10,8 @@
   parameters z of the effects ``names`` (``effects.param_list``), several points at once;
   ``fd_jacobian``: their forward-difference Jacobian in z (step ``FD_STEP``).
 * ``forward_from_experiment(exp)``: the forward and traces of an experiment file (every scenario);
-  ``block_forward``, ``synthetic_traces``: synthetic studies of the block.
+  ``block_forward``, ``synthetic_traces``: synthetic studies of the block;
+  ``simulated_responses``, ``simulate_experiment``: synthetic measurements of any experiment.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from . import effects as fx
 from .traces import Trace
 
 __all__ = ["Forward", "FD_STEP", "residuals_at", "fd_jacobian", "forward_from_experiment", "block_forward",
-           "synthetic_traces"]
+           "synthetic_traces", "simulated_responses", "simulate_experiment"]
 
 
 class Forward:
@@ -196,11 +197,13 @@ FD_STEP = 1e-3
 [0, 1] (one-sided, into the box)."""
 
 
-def fd_jacobian(resid_many, z, r, h: float = FD_STEP, steps=None) -> np.ndarray:
-    """(m, k) forward differences at z (backward where z + h leaves [0, 1]), or with the
-    given ``steps`` (k,) per parameter; ``resid_many(list of z) -> list of residuals``
-    evaluates the k points together."""
-    steps = np.where(z + h <= 1.0, h, -h) if steps is None else np.asarray(steps, dtype=float)
+def fd_jacobian(resid_many, z, r, h: float = FD_STEP, overrides=None) -> np.ndarray:
+    """(m, k) forward differences at z: step h, backward where z + h leaves [0, 1], except
+    the parameters j in ``overrides`` ({j: step}), which take their own step;
+    ``resid_many(list of z) -> list of residuals`` evaluates the k points together."""
+    steps = np.where(z + h <= 1.0, h, -h)
+    for j, s in (overrides or {}).items():
+        steps[j] = s
     points = []
     for j in range(z.size):
         zz = z.copy()
@@ -310,3 +313,22 @@ def synthetic_traces(fwd: Forward, conditions, truth: Mapping, noise: float, see
         y = fwd.predict(truth, tr)
         out.append(dataclasses.replace(tr, channels={channel: y + noise * rng.standard_normal(y.shape)}))
     return out
+
+
+def simulated_responses(fwd: Forward, traces: Sequence[Trace], truth: Mapping, noise: float,
+                        seed: int = 0) -> list[np.ndarray]:
+    """Synthetic measurements of ``traces``: each one's response predicted with the effects
+    ``truth`` ({name: values}) plus white noise of standard deviation ``noise`` (the
+    response's unit), drawn in trace order from one generator seeded ``seed``."""
+    rng = np.random.default_rng(seed)
+    return [np.asarray(fwd.predict(truth, tr)) + noise * rng.standard_normal(len(tr.time)) for tr in traces]
+
+
+def simulate_experiment(path, truth: Mapping, noise: float, seed: int = 0) -> tuple[list[Trace], list[np.ndarray]]:
+    """The traces of the experiment file ``path`` (any scenario) and their synthetic
+    measurements (``simulated_responses``): what the example generators of
+    ``data/examples/make_*_diagnose.py`` write, each in its own CSV layout."""
+    from .data import load_experiment
+
+    fwd, traces = forward_from_experiment(load_experiment(path))
+    return traces, simulated_responses(fwd, traces, truth, noise, seed)

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from . import effects as fx
-from .forward import FD_STEP, Forward, fd_jacobian, residuals_at
+from .forward import Forward, fd_jacobian, residuals_at
 from .selection import information_criteria
 from .traces import Trace
 
@@ -58,15 +58,13 @@ def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0:
     r_off = resid_many([z_off])[0]  # the baseline (its simulations cached)
     # a threshold effect (Param.probe: the amplifier's slew limit acts only below the command's
     # own rate) has no slope at off: its column is the secant from off to its middle data start
-    # (else its start value)
-    def step(name, p, z0):
-        if not p.probe:
-            return FD_STEP if z0 + FD_STEP <= 1.0 else -FD_STEP
+    # (else its start value); every other column the default forward difference
+    def secant(name, p, z0):
         starts = [st[p.name] for st in fx.get(name).starts(traces) if p.name in st]
         return p.z_of(starts[len(starts) // 2] if starts else p.start) - z0
 
-    steps = np.array([step(name, p, z0) for (name, p), z0 in zip(plist, z_off)])
-    J = fd_jacobian(resid_many, z_off, r_off, steps=steps)
+    probes = {j: secant(name, p, z0) for j, ((name, p), z0) in enumerate(zip(plist, z_off)) if p.probe}
+    J = fd_jacobian(resid_many, z_off, r_off, overrides=probes)
     n = r0.size
     sse0 = float(r0 @ r0)
     _, bic0 = criteria(sse0, n, 0)

@@ -59,6 +59,27 @@ def test_residuals_and_forward_differences_in_normalized_parameters():
         np.testing.assert_allclose(J, 2.0, rtol=1e-9)
 
 
+def test_forward_differences_take_per_parameter_step_overrides():
+    """A quadratic residual r(z) = z^2 (element-wise): the forward difference with step s is
+    2 z + s, so each column shows the step it was taken with (default h, or the override)."""
+    resid_many = lambda points: [np.asarray(zz) ** 2 for zz in points]
+    z = np.array([0.2, 0.5, 0.99])
+    J = fw.fd_jacobian(resid_many, z, z ** 2, h=0.02, overrides={1: 0.3})
+    # column 0: forward h; column 1: the override; column 2: backward (z + h leaves [0, 1])
+    np.testing.assert_allclose(np.diag(J), [2 * 0.2 + 0.02, 2 * 0.5 + 0.3, 2 * 0.99 - 0.02], rtol=1e-12)
+    np.testing.assert_allclose(J - np.diag(np.diag(J)), 0.0, atol=0)
+
+
+def test_simulated_responses_are_the_prediction_plus_seeded_noise():
+    tr = analytic_traces({}, seed=1)
+    fwd = AnalyticForward()
+    ys = fw.simulated_responses(fwd, tr, {"sensor_offset": {"c": 1e-3}}, noise=1e-4, seed=7)
+    rng = np.random.default_rng(7)
+    for t, y in zip(tr, ys):  # noise drawn in trace order from one generator
+        expect = fwd.predict({"sensor_offset": {"c": 1e-3}}, t) + 1e-4 * rng.standard_normal(len(t.time))
+        np.testing.assert_allclose(y, expect, rtol=0, atol=1e-15)
+
+
 def test_forward_from_an_experiment_file():
     exp = load_experiment(EXAMPLES / "block_example.toml")
     fwd, traces = fw.forward_from_experiment(exp)

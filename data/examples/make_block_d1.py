@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from fitting import diagnose as dg
+from fitting.forward import simulated_responses
 from fitting.traces import Trace
 
 HERE = Path(__file__).resolve().parent
@@ -29,12 +30,13 @@ CONDITIONS = [("block_d1_16kV_2Hz", 16e3, 2.0, 2.0), ("block_d1_16kV_8Hz", 16e3,
 def main():
     n_max = max(int(round(T / DT)) for *_, T in CONDITIONS)
     fwd = dg.block_forward(pad_to=n_max)
-    rng = np.random.default_rng(1)
+    traces = []
     for name, phi, f, T in CONDITIONS:
         t = np.linspace(0.0, T, int(round(T / DT)) + 1)
-        tr = Trace(t, {"stretch": np.zeros_like(t)}, name=name, loading={"kind": "sine", "phi_max": phi, "freq": f},
-                   response="stretch")
-        y = fwd.predict(TRUTH, tr) + SIGMA * rng.standard_normal(t.size)
+        traces.append(Trace(t, {"stretch": np.zeros_like(t)}, name=name,
+                            loading={"kind": "sine", "phi_max": phi, "freq": f}, response="stretch"))
+    for tr, y in zip(traces, simulated_responses(fwd, traces, TRUTH, SIGMA, seed=1)):
+        name, t = tr.name, np.asarray(tr.time)
         volt = np.asarray(tr.voltage())
         with open(HERE / f"{name}.csv", "w") as fh:
             fh.write("# SIMULATED block experiment (make_block_d1.py): dejax block, paper material, an extra fast "

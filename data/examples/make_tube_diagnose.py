@@ -16,9 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fitting.data import load_experiment
-from fitting.forward import forward_from_experiment
-from fitting.traces import Trace
+from fitting.forward import simulate_experiment
 
 HERE = Path(__file__).resolve().parent
 TRUTH = {"voltage_lag": {"tau": 0.004}}  # s
@@ -42,11 +40,8 @@ def main():
     for name, phi, f, n in CONDITIONS:
         t = np.linspace(0.0, n / f, n * SAMPLES_PER_CYCLE + 1)
         write(name, t, np.zeros_like(t), 0.5 * phi * (1.0 + np.sin(2 * np.pi * f * t - np.pi / 2)))
-    exp = load_experiment(HERE / "tube_diagnose.toml")
-    fwd, traces = forward_from_experiment(exp)
-    rng = np.random.default_rng(2)
-    for tr in traces:
-        y = fwd.predict(TRUTH, tr) + SIGMA * rng.standard_normal(len(tr.time))
+    traces, ys = simulate_experiment(HERE / "tube_diagnose.toml", TRUTH, SIGMA, seed=2)
+    for tr, y in zip(traces, ys):
         write(tr.name, np.asarray(tr.time), y, np.asarray(tr.voltage()))
 
 

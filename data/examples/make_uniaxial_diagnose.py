@@ -16,8 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fitting.data import load_experiment
-from fitting.forward import forward_from_experiment
+from fitting.forward import simulate_experiment
 
 HERE = Path(__file__).resolve().parent
 TRUTH = {"creep": {"mu": 8e3, "tau": 10.0}}  # Pa, s
@@ -41,11 +40,8 @@ def main():
         t_peak = (PEAK - 1.0) / rate
         t = np.linspace(0.0, 2.0 * t_peak, SAMPLES + 1)
         write(name, t, 1.0 + rate * (t_peak - np.abs(t - t_peak)), np.zeros_like(t))
-    exp = load_experiment(HERE / "uniaxial_diagnose.toml")
-    fwd, traces = forward_from_experiment(exp)
-    rng = np.random.default_rng(3)
-    for tr in traces:
-        y = fwd.predict(TRUTH, tr) + SIGMA * rng.standard_normal(len(tr.time))
+    traces, ys = simulate_experiment(HERE / "uniaxial_diagnose.toml", TRUTH, SIGMA, seed=3)
+    for tr, y in zip(traces, ys):
         write(tr.name, np.asarray(tr.time), tr.channels["stretch"], y)
 
 
