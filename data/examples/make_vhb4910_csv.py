@@ -1,7 +1,8 @@
 """Convert Hossain et al. (2012) VHB 4910 curves (data/vhb4910-hossain2012, MIT,
 digitized by the vCANN project, K. Abdolazizi) into CSV traces for
-vhb4910_uniaxial.toml: time reconstructed from the constant stretch rate
-(fitting.datasets.reconstruct_time), stretch (-), nominal stress (kPa).
+vhb4910_uniaxial.toml (peak 1.5) and vhb4910_diagnose.toml (peaks 2 and 3): time
+reconstructed from the constant stretch rate (fitting.datasets.reconstruct_time),
+stretch (-), nominal stress (kPa).
 
 Run: python data/examples/make_vhb4910_csv.py
 """
@@ -13,7 +14,8 @@ from fitting.datasets import load_hossain2012
 
 HERE = Path(__file__).resolve().parent
 
-for peak, rate in [(1.5, 0.05), (1.5, 0.01), (1.5, 0.03)]:
+for peak, rate in [(1.5, 0.05), (1.5, 0.01), (1.5, 0.03), (2.0, 0.01), (2.0, 0.03), (2.0, 0.05), (3.0, 0.01),
+                   (3.0, 0.05)]:
     c = load_hossain2012(peak, rate)
     path = HERE / f"vhb4910_{peak:g}_{rate:g}.csv"
     with open(path, "w") as f:
