@@ -427,7 +427,7 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
         print(format_table(rows))
     for k, v in extra.items():
         if k != "robust":
-            print(f"{k}: {v:.3f}")
+            print(f"{k}: {v:.3g}")
     if json_path:
         with open(json_path, "w") as f:
             json.dump({"rows": rows, **extra, "device": str(jax.devices()[0])}, f, indent=2, default=float)
