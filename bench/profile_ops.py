@@ -1,0 +1,105 @@
+"""Where a whole run's time goes, by XLA operation (issue 10, point 2): R1's forward run or
+G1's derivative run, traced with ``jax.profiler`` and the operations' durations summed.
+
+    python bench/profile_ops.py --case G1 [--steps 100] [--top 25]
+
+Cases (tube 4x8x1, Model IV, 50 kV, 30 Hz, dt = 5e-4 s as ``dejax bench``'s R1 and G1):
+``R1`` the forward run (step cut-back allowed), ``G1`` ``jax.jacfwd`` of the last-cycle
+mean x_P with respect to the 12 parameters of G1 (user's grid), ``G1R`` the same by one
+reverse pass. Printed: the total operation time (summed over XLA's threads, so it can
+exceed the wall time), the time per operation kind (the HLO name without its number:
+``multiply_reduce_fusion``, ``lu``, ...) and per individual operation. Control flow
+(``while``, ``cond``, ``call``) is listed apart and left out of the total: its span
+contains the operations of its body, which are counted themselves. With
+``--hlo FILE`` the optimized HLO text, to look an operation up by name (its shapes and
+the jaxpr path in its metadata). After one untraced call (compilation).
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import re
+import tempfile
+
+import jax
+import jax.numpy as jnp
+
+from dejax import integrate as it
+from dejax import scenarios
+
+
+CONTROL = ("while", "cond", "call", "conditional")
+
+
+def op_times(f, args, calls: int = 1):
+    """{(kind, name): seconds per call} of the XLA operations of ``f(*args)`` (jitted)."""
+    jax.block_until_ready(f(*args))
+    folder = tempfile.mkdtemp(prefix="dejax-trace-")
+    jax.profiler.start_trace(folder)
+    for _ in range(calls):
+        out = f(*args)
+    jax.block_until_ready(out)
+    jax.profiler.stop_trace()
+    (path,) = glob.glob(folder + "/**/*.xplane.pb", recursive=True)
+    totals = collections.Counter()
+    for plane in jax.profiler.ProfileData.from_file(path).planes:
+        for line in plane.lines:
+            if not line.name.startswith("tf_XLA") or "Eigen" not in line.name:
+                continue  # XLA's compute threads only
+            for ev in line.events:
+                if "ThunkExecutor" in ev.name:
+                    continue  # the executor's own span, not an operation
+                totals[ev.name] += ev.duration_ns * 1e-9 / calls
+    return totals
+
+
+def case_function(case: str, steps: int, dt: float = 5e-4):
+    times = it.time_grid(10 / 30.0, dt)[: steps + 1]
+    base = scenarios.rolled_material("IV")
+    theta0 = jnp.concatenate([base.mu_inf[None], base.mu, base.eta, jnp.array([2e-3, 8e-3, 2e-3])])
+    per = int(round(1.0 / 30.0 / dt))
+
+    def mean_last_cycle(theta, control=None):
+        mat = scenarios.rolled_material("IV", mu_inf=theta[0], mu=theta[1:5], eta=theta[5:9])
+        p = scenarios.rolled(mat, 30.0, 50e3, h=theta[9], L=theta[10], r=theta[11], shape=(4, 8, 1))
+        sol = it.simulate(p.model, p.loading, times, p.output_fn, control=control)
+        return jnp.mean(sol.outputs["x_P"][-min(per, steps):])
+
+    f = {"R1": lambda th: mean_last_cycle(th, it.StepControl()), "G1": jax.jacfwd(mean_last_cycle),
+         "G1R": jax.grad(mean_last_cycle)}[case]
+    return jax.jit(f), (theta0,)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--case", choices=("R1", "G1", "G1R"), default="G1")
+    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--hlo", default=None, help="write the optimized HLO text here")
+    a = ap.parse_args()
+    f, args = case_function(a.case, a.steps)
+    totals = op_times(f, args)
+    kinds, control = collections.Counter(), collections.Counter()
+    for name, s in totals.items():
+        kind = re.sub(r"\.\d+$", "", name)
+        (control if kind in CONTROL else kinds)[kind] += s
+    totals = collections.Counter({k: v for k, v in totals.items() if re.sub(r"\.\d+$", "", k) not in CONTROL})
+    total = sum(totals.values())
+    print(f"{a.case}, {a.steps} steps: {total:.2f} s of XLA operation time ({1e3 * total / a.steps:.1f} ms per step)")
+    print("control flow (spans include their bodies' operations): "
+          + ", ".join(f"{k} {1e3 * v / a.steps:.1f} ms/step" for k, v in control.most_common()))
+    print("by kind:")
+    for k, s in kinds.most_common(a.top):
+        print(f"  {1e3 * s / a.steps:9.2f} ms/step  {100 * s / total:5.1f} %  {k}")
+    print("by operation:")
+    for k, s in totals.most_common(a.top):
+        print(f"  {1e3 * s / a.steps:9.2f} ms/step  {100 * s / total:5.1f} %  {k}")
+    if a.hlo:
+        with open(a.hlo, "w") as fh:
+            fh.write(f.lower(*args).compile().as_text())
+        print(f"optimized HLO written to {a.hlo}")
+
+
+if __name__ == "__main__":
+    main()
