@@ -257,7 +257,8 @@ def case_F1() -> list[dict]:
         runs, fits = {}, {}
         for label in ("cold", "warm"):
             out = Path(tmp) / f"fit_{label}"
-            runs[label] = run_command(["fit", str(toml), "--out", str(out), "--no-plots", "--quiet"], Path(tmp) / "cache")
+            runs[label] = run_command(["fit", str(toml), "--out", str(out), "--no-plots", "--quiet"],
+                                      Path(tmp) / "cache")
             fits[label] = json.loads((out / "fit.json").read_text())
         rows = []
         for label, r in runs.items():
