@@ -23,10 +23,9 @@ import re
 import tempfile
 
 import jax
-import jax.numpy as jnp
 
+from dejax import bench
 from dejax import integrate as it
-from dejax import scenarios
 
 
 CONTROL = ("while", "cond", "call", "conditional")
@@ -55,17 +54,7 @@ def op_times(f, args, calls: int = 1):
 
 
 def case_function(case: str, steps: int, dt: float = 5e-4):
-    times = it.time_grid(10 / 30.0, dt)[: steps + 1]
-    base = scenarios.rolled_material("IV")
-    theta0 = jnp.concatenate([base.mu_inf[None], base.mu, base.eta, jnp.array([2e-3, 8e-3, 2e-3])])
-    per = int(round(1.0 / 30.0 / dt))
-
-    def mean_last_cycle(theta, control=None):
-        mat = scenarios.rolled_material("IV", mu_inf=theta[0], mu=theta[1:5], eta=theta[5:9])
-        p = scenarios.rolled(mat, 30.0, 50e3, h=theta[9], L=theta[10], r=theta[11], shape=(4, 8, 1))
-        sol = it.simulate(p.model, p.loading, times, p.output_fn, control=control)
-        return jnp.mean(sol.outputs["x_P"][-min(per, steps):])
-
+    mean_last_cycle, theta0 = bench.g1_objective(steps, dt)
     f = {"R1": lambda th: mean_last_cycle(th, it.StepControl()), "G1": jax.jacfwd(mean_last_cycle),
          "G1R": jax.grad(mean_last_cycle)}[case]
     return jax.jit(f), (theta0,)

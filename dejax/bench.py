@@ -146,6 +146,25 @@ def case_R(name, shape, max_steps=None, dt=1e-4, cycles=10, solver="auto", newto
                      f"tube-{mesh}-IV-50kV-30Hz" if reference else None)
 
 
+def g1_objective(n_steps, dt=1e-4, cycles=10, shape=(4, 8, 1)):
+    """G1's function and point: ``(mean_last_cycle(theta, control=None), theta0)``, the mean
+    x_P (m) over the last cycle (or the run, if shorter) of the first ``n_steps`` steps of
+    R1's loading, as a function of theta (12,) = (mu_inf, mu_1..4, eta_1..4 of Model IV, h,
+    L, r); NaN if the run fails. theta0: Model IV and the paper's geometry."""
+    times = it.time_grid(cycles / 30.0, dt)[: n_steps + 1]
+    per = int(round(1.0 / 30.0 / dt))
+
+    def mean_last_cycle(theta, control=None):
+        mat = scenarios.rolled_material("IV", mu_inf=theta[0], mu=theta[1:5], eta=theta[5:9])
+        p = scenarios.rolled(mat, 30.0, 50e3, h=theta[9], L=theta[10], r=theta[11], shape=shape)
+        sol = it.simulate(p.model, p.loading, times, p.output_fn, control=control)
+        x = sol.outputs["x_P"][-min(per, n_steps):]
+        return jnp.where(sol.status == 0, jnp.mean(x), jnp.nan)
+
+    base = scenarios.rolled_material("IV")
+    return mean_last_cycle, jnp.concatenate([base.mu_inf[None], base.mu, base.eta, jnp.array([2e-3, 8e-3, 2e-3])])
+
+
 def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False):
     """jacfwd (``reverse``: jax.grad, one reverse pass) of the last-cycle mean x_P w.r.t. 12
     parameters (9 material + h, L, r), against the forward run as R1 makes it (with step
@@ -154,24 +173,9 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False):
     to round-off, measured), in one pass instead of a forward run plus a replay of its
     accepted sub-steps (12 % less on 100 steps of R1). The row carries the derivative
     (``gradient``) so that G1 and G1R can be compared."""
-    t_end = cycles / 30.0
-    times = it.time_grid(t_end, dt)
-    n_full = times.size - 1
+    n_full = it.time_grid(cycles / 30.0, dt).size - 1
     n = n_full if max_steps is None else min(n_full, int(max_steps))
-    times = times[: n + 1]
-    base = scenarios.rolled_material("IV")
-    per = int(round(1.0 / 30.0 / dt))
-
-    def mean_last_cycle(theta, control=None):
-        mat = scenarios.rolled_material(
-            "IV", mu_inf=theta[0], mu=theta[1:5], eta=theta[5:9]
-        )
-        p = scenarios.rolled(mat, 30.0, 50e3, h=theta[9], L=theta[10], r=theta[11], shape=shape)
-        sol = it.simulate(p.model, p.loading, times, p.output_fn, control=control)
-        x = sol.outputs["x_P"][-min(per, n):]
-        return jnp.where(sol.status == 0, jnp.mean(x), jnp.nan)
-
-    theta0 = jnp.concatenate([base.mu_inf[None], base.mu, base.eta, jnp.array([2e-3, 8e-3, 2e-3])])
+    mean_last_cycle, theta0 = g1_objective(n, dt, cycles, shape)
     f = jax.jit(lambda th: mean_last_cycle(th, it.StepControl()))
     g = jax.jit(jax.grad(mean_last_cycle) if reverse else jax.jacfwd(mean_last_cycle))
     tic = time.perf_counter()

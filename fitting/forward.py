@@ -303,16 +303,14 @@ def synthetic_traces(fwd: Forward, conditions, truth: Mapping, noise: float, see
     """Traces of the block made with the effects ``truth`` ({name: values}) plus white noise,
     their response ``channel`` (the forward's output), under a sine loading.
     conditions: sequence of (name, role, phi_max V, freq Hz)."""
-    rng = np.random.default_rng(seed)
-    out = []
+    placeholders = []
     for name, role, phi, f in conditions:
         n = int(round(n_cycles * samples_per_cycle))
         t = np.linspace(0.0, n_cycles / f, n + 1)
-        tr = Trace(t, {channel: np.zeros_like(t)}, role, {"phi_max": phi, "freq": f}, name=name,
-                   loading={"kind": "sine", "phi_max": phi, "freq": f}, response=channel)
-        y = fwd.predict(truth, tr)
-        out.append(dataclasses.replace(tr, channels={channel: y + noise * rng.standard_normal(y.shape)}))
-    return out
+        placeholders.append(Trace(t, {channel: np.zeros_like(t)}, role, {"phi_max": phi, "freq": f}, name=name,
+                                  loading={"kind": "sine", "phi_max": phi, "freq": f}, response=channel))
+    ys = simulated_responses(fwd, placeholders, truth, noise, seed)
+    return [dataclasses.replace(tr, channels={channel: y}) for tr, y in zip(placeholders, ys)]
 
 
 def simulated_responses(fwd: Forward, traces: Sequence[Trace], truth: Mapping, noise: float,
