@@ -229,15 +229,35 @@ def register_diagnose(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--noise", type=positive("--noise"), default=None,
                    help="noise sigma in output units (default: estimated from the traces)")
     p.add_argument("--max-iter", type=int_at_least("--max-iter", 1), default=8,
-                   help="Levenberg-Marquardt iterations per candidate")
+                   help="Levenberg-Marquardt evaluations per candidate (with --refit, 3 more per refitted "
+                        "parameter)")
     p.add_argument("--fit-top", type=int_at_least("--fit-top", 0), default=3,
                    help="fit the best N candidates of the screening at the baseline (0: fit every candidate)")
     p.add_argument("--fit-pairs", type=int_at_least("--fit-pairs", 0), default=3,
                    help="when no single effect leaves residuals at the noise level, fit the best N screened pairs "
                         "(more, up to 8, while none does; 0: no pairs)")
+    p.add_argument("--refit", nargs="?", const="", default=None, metavar="PARAMS",
+                   help="refit the baseline's material parameters with every candidate (a factor in [1/10, 10] "
+                        "on each): the comma-separated PARAMS, or without a value the experiment's [fit] free "
+                        "(c_d excepted)")
     p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
     p.set_defaults(func=diagnose_handler)
     return p
+
+
+def refit_params(option: str | None, exp) -> list[str]:
+    """The material parameters ``dejax diagnose --refit`` refits: none without the flag, the
+    comma-separated list given, else the experiment's ``[fit] free`` without ``c_d``
+    (ValueError when it has none)."""
+    if option is None:
+        return []
+    if option.strip():
+        return [s.strip() for s in option.split(",") if s.strip()]
+    free = [k for k in exp.fit.free if k != "c_d"]
+    if not free:
+        raise ValueError(f"--refit without a list: {exp.path} has no [fit] free material parameters; "
+                         "name them, e.g. --refit mu_inf,mu_1")
+    return free
 
 
 def diagnose_handler(args) -> int:
@@ -252,9 +272,10 @@ def diagnose_handler(args) -> int:
         for c in cands or []:
             fx.get(c)
         start = fx.from_experiment(exp) if exp.effects else None
+        refit = refit_params(getattr(args, "refit", None), exp)
         diag = dg.diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
                            verbose=not getattr(args, "quiet", False), fit_top=args.fit_top,
-                           pairs=args.fit_pairs > 0, fit_pairs=args.fit_pairs)
+                           pairs=args.fit_pairs > 0, fit_pairs=args.fit_pairs, refit=refit)
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
         print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2

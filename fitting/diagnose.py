@@ -31,6 +31,10 @@ viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Tr
     the fit traces but worsens the withheld ones explains nothing), within them by the holdout
     RMS; the screened-out ones follow with their linearized figures, never chosen.
     Gauss-Newton standard errors s^2 (J^T J)^-1 at the optimum.
+    With ``refit`` (``dejax diagnose --refit``) the baseline's own parameters (factors on
+    them, ``effects.refit_names``) are first refitted alone, that refitted baseline becomes
+    the reference, and they are refitted jointly with every candidate (screening included);
+    they count in no candidate's k.
 (c) HOW FAR: RMS and "gap" = sqrt(max(RMS^2 - sigma^2, 0)) before/after, on fit and
     holdout, overall and per feature.
 
@@ -82,6 +86,7 @@ class CandidateResult:
     significant: bool = False
     worse_on_holdout: bool = False  # its holdout RMS exceeds the baseline's (beyond sampling)
     fitted: bool = True  # False: screened out (its figures are the screening's linearized ones)
+    at_bounds: list = dataclasses.field(default_factory=list)  # "effect.param" fitted onto a bound (not off)
 
     def as_dict(self):
         return dataclasses.asdict(self)
@@ -114,6 +119,8 @@ class Diagnosis:
             hold = f"{c['rms_holdout']:.3e}" if c["rms_holdout"] is not None else "-"
             if not c.get("fitted", True):
                 pv += "  (screened out; linearized at the baseline)"
+            if c.get("at_bounds"):
+                pv += f"  (at a bound: {', '.join(c['at_bounds'])})"
             if c.get("worse_on_holdout"):
                 pv += "  (worse than the baseline on the withheld traces: no explanation)"
             lines.append(f"{i + 1:>4} {c['name']:<20} {c['k']:>2} {c['d_bic']:>9.1f} {c['d_aic']:>9.1f} "
@@ -132,7 +139,7 @@ class Diagnosis:
 def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | None = None,
              noise: float | None = None, bic_threshold: float = 10.0, z: float = 4.0, max_iter: int = 8,
              start: Mapping | None = None, verbose: bool = False, fit_top: int = 3, pairs: bool = True,
-             fit_pairs: int = 3, max_pairs: int = 8) -> Diagnosis:
+             fit_pairs: int = 3, max_pairs: int = 8, refit: Sequence[str] = ()) -> Diagnosis:
     """Run (a)-(c) of the module docstring. ``candidates``: effect names (default: all).
 
     ``fit_top``: how many candidates, best screened first, are fitted (0: every one, no
@@ -140,7 +147,15 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     screened BIC beats the best single's by ``bic_threshold``: ``fit_pairs`` of them, and
     more (up to ``max_pairs``) while no fitted candidate leaves residuals at the noise level
     (a pair of near-equivalent effects can screen above the true one); none when a single
-    effect already does."""
+    effect already does.
+
+    ``refit``: material parameters of the baseline (e.g. the experiment's ``[fit] free``)
+    refitted with every candidate (``effects.refit_names``: a factor in [1/10, 10] on each):
+    first alone, and that refitted baseline is the reference of every comparison (its
+    parameters are the baseline's own, counted in no candidate's k); then jointly with each
+    candidate, so that an effect is not credited with what the baseline's parameters, fitted
+    without it, absorbed (or failed to absorb) of the data. Each fit then has ``max_iter`` + 3
+    per refitted parameter evaluations (more parameters, more steps to converge)."""
     t0 = _time.time()
     fit = [tr for tr in traces if tr.role == "fit"]
     hold = [tr for tr in traces if tr.role != "fit"]
@@ -157,12 +172,34 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     if verbose:
         print(f"[diagnose] baseline done in {_time.time() - t0:.1f} s; {len(candidates)} candidate effect(s)",
               flush=True)
+    refit_fx = fx.refit_names(refit)
+    max_iter = max_iter + 3 * len(refit_fx)
+    base_fx: dict = {}  # the baseline's refit factors (none without refit)
+    refit_info = None
+    if refit_fx:
+        if fwd.pieces0.model is not None:  # a unit the baseline lacks: a clear error before any fit
+            fx.apply_effects(fwd.pieces0, {name: {} for name in refit_fx})
+        ts = _time.time()
+        vals, sd, sse_r, _ = fit_effects(fwd, refit_fx, fit, max_iter=max_iter)
+        base_fx = {name: vals[name] for name in refit_fx}
+        before_refit = {
+            "rms_fit": rms(np.concatenate([base_pred[tr.name] - tr.y for tr in fit])),
+            "rms_holdout": rms(np.concatenate([base_pred[tr.name] - tr.y for tr in hold])) if hold else None}
+        base_pred = dict(zip((tr.name for tr in traces), fwd.predict_many([(base_fx, tr) for tr in traces])))
+        refit_info = {"values": {n: v["factor"] for n, v in base_fx.items()},
+                      "stderr": {n: v["factor"] for n, v in sd.items()}, "before": before_refit}
+        if verbose:
+            print(f"[diagnose] baseline refitted ({', '.join(refit)}) in {_time.time() - ts:.1f} s: factors "
+                  + ", ".join(f"{n[len(fx.REFIT_PREFIX):]} x{v:.4g}" for n, v in refit_info["values"].items())
+                  + f"; RMS fit {before_refit['rms_fit']:.3e} -> {math.sqrt(sse_r / max(n, 1)):.3e}", flush=True)
+    candidates = [c for c in candidates if c not in refit_fx]
     r0 = np.concatenate([base_pred[tr.name] - tr.y for tr in fit])
     sse0 = float(r0 @ r0)
     aic0, bic0 = criteria(sse0, n, 0)
     rms_h0 = rms(np.concatenate([base_pred[tr.name] - tr.y for tr in hold])) if hold else None
     n_hold = int(sum(len(tr) for tr in hold))
-    baseline = {"sse_fit": sse0, "rms_fit": rms(r0), "rms_holdout": rms_h0, "aic": aic0, "bic": bic0}
+    baseline = {"sse_fit": sse0, "rms_fit": rms(r0), "rms_holdout": rms_h0, "aic": aic0, "bic": bic0,
+                "refit": refit_info}
     chi = (sse0 / n) / sigma ** 2 if sigma > 0 else float("inf")
     chi_lim = 1.0 + z * math.sqrt(2.0 / n)
     before = breakdown(traces, [base_pred[tr.name] for tr in traces])
@@ -174,7 +211,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     if fit_top and len(candidates) > fit_top:
         ts = _time.time()
         s0 = fwd.n_sims
-        scr = screen(fwd, candidates, fit, r0, pairs=pairs)
+        scr = screen(fwd, candidates, fit, r0, pairs=pairs, extra=refit_fx, base=base_fx)
         singles = sorted(((name,) for name in candidates), key=lambda g: scr[g].d_bic)
         to_fit = singles[:fit_top]
         if pairs:  # pair candidates, best screened first, that beat the best single's screened BIC
@@ -190,7 +227,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
             sc = scr[g]
             k = fx.get(g[0]).n_params
             aic, bic = criteria(sc.sse, n, k)
-            vals = fx.values_at(g, sc.z)
+            vals = fx.values_at(list(g) + refit_fx, sc.z)
             results.append(CandidateResult(g[0], vals, {}, k, sc.sse, math.sqrt(sc.sse / n), None, aic, bic,
                                            aic - aic0, bic - bic0, 0, 0.0, fitted=False))
 
@@ -216,13 +253,13 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     for i, g in enumerate(queue()):
         ts = _time.time()
         s0 = fwd.n_sims
-        vals, sd, sse, _ = fit_effects(fwd, list(g), fit, start=start, max_iter=max_iter,
-                                       z0=None if scr is None else scr[g].z)
+        vals, sd, sse, _ = fit_effects(fwd, list(g) + refit_fx, fit, start={**dict(start or {}), **base_fx},
+                                       max_iter=max_iter, z0=None if scr is None else scr[g].z)
         k = sum(fx.get(name).n_params for name in g)
         aic, bic = criteria(sse, n, k)
         rh = rms(fwd.residuals([vals], hold)[0]) if hold else None
         c = CandidateResult("+".join(g), vals, sd, k, sse, math.sqrt(sse / n), rh, aic, bic, aic - aic0, bic - bic0,
-                            fwd.n_sims - s0, _time.time() - ts)
+                            fwd.n_sims - s0, _time.time() - ts, at_bounds=at_bounds(vals))
         # a pair must also beat each of its fitted singles by the threshold (nested models)
         singles_bic = [r.bic for r in results if r.fitted and r.name in g and len(g) > 1]
         c.significant = c.d_bic < -bic_threshold and all(c.bic < b - bic_threshold for b in singles_bic)
@@ -268,6 +305,19 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     alts = equivalent(best, results, n_hold=int(sum(len(tr) for tr in hold)) if hold else n) if best else []
     return Diagnosis(verdict, best.name if best else None, sigma, chi, chi_lim, baseline,
                      [c.as_dict() for c in results], before, after, shrink, n, _time.time() - t0, preds, alts)
+
+
+def at_bounds(values: Mapping) -> list[str]:
+    """"effect.param" of the parameters in ``values`` ({effect: {param: value}}) that sit on a
+    bound of their range other than their off value: the optimum lies beyond the range."""
+    out = []
+    for name, vals in values.items():
+        for p in fx.get(name).params:
+            x = vals.get(p.name, p.off)
+            z = p.z_of(x)
+            if (z <= 1e-6 or z >= 1.0 - 1e-6) and not math.isclose(x, p.off, rel_tol=1e-9, abs_tol=1e-300):
+                out.append(f"{name}.{p.name}")
+    return out
 
 
 def equivalent(best: CandidateResult, results, n_hold: int, z: float = 2.0) -> list:

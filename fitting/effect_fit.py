@@ -61,16 +61,20 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
                               jacobian=lambda z, r: fd_jacobian(resid_many, z, r), max_evals=max_iter + 1,
                               ftol=rtol, xtol=1e-7, broyden=True)
     z, sse, J = res.x, res.cost, res.J
-    # Gauss-Newton covariance in natural units
+    # Gauss-Newton covariance s^2 (J^T J)^-1, from the SVD of the normalized J (not of J^T J,
+    # whose condition number is squared), then in natural units: sd_x = |dx/dz| sd_z
     vals = fx.values_at(names, z, fixed)
     stderr = {}
     n, k = res.r.size, z.size
     s2 = sse / max(n - k, 1)
     D = np.array([p.dx_dz(vals[nm][p.name]) for nm, p in plist])
-    Jx = J / D[None, :]
     try:
-        cov = s2 * np.linalg.pinv(Jx.T @ Jx)
-        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        _, S, Vt = np.linalg.svd(J, full_matrices=False)
+        keep = S > S[0] * 1e-12 if S.size and S[0] > 0 else np.zeros(S.shape, bool)
+        var_z = s2 * np.sum((Vt[keep] / S[keep, None]) ** 2, axis=0)
+        # a parameter along a direction the data do not determine (J singular there): unbounded
+        var_z = np.where(np.sum(Vt[~keep] ** 2, axis=0) > 1e-6, np.inf, var_z)
+        sd = np.where(np.any(keep), np.sqrt(var_z) * np.abs(D), np.nan)
     except np.linalg.LinAlgError:
         sd = np.full(k, np.nan)
     for (nm, p), s_ in zip(plist, sd):

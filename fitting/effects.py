@@ -37,6 +37,11 @@ sensor_drift        rate (output units / s; kPa/s)             y -> y + rate t
 sensor_latency      delay (s)                                   y(t) -> y(t - delay)
 ==================  ==========================================  =====================================
 
+Baseline refits (not candidates: the baseline's own parameters, fitted jointly with every
+candidate by ``dejax diagnose --refit``): ``refit:NAME`` for a material parameter NAME of
+``dejax.parameters`` (mu_inf, Jm_inf, mu_1, eta_1, ...), one parameter ``factor`` (log scale,
+off 1, bounds [1/10, 10]) multiplying the baseline's value (``refit_names``).
+
 Not realisable without core changes (``UNAVAILABLE``): ``mullins`` and a kinematic
 ``prestretch``; see the messages there.
 
@@ -48,6 +53,7 @@ its bounds onto z in [0, 1], linearly or in log scale (``Param.z_of``, ``Param.f
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Callable, Mapping, Sequence
 
@@ -57,12 +63,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from dejax import integrate as it
+from dejax import parameters
 from dejax.material import Material
 
 __all__ = [
     "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "slew_active", "SLEW_OFF",
     "EFFECTS", "UNAVAILABLE", "get", "names", "applies", "augment_material", "make_pieces", "apply_effects",
-    "from_experiment", "param_list", "values_at",
+    "from_experiment", "param_list", "values_at", "REFIT_PREFIX", "refit_names",
 ]
 
 DORMANT = 1e-9  # shear modulus of a dormant viscous unit, relative to mu_inf
@@ -443,6 +450,49 @@ UNAVAILABLE = {
 }
 
 
+REFIT_PREFIX = "refit:"
+"""Prefix of the baseline-refit effects: ``refit:mu_inf`` multiplies the baseline's mu_inf."""
+REFIT_BOUNDS = (0.1, 10.0)
+"""Range of a refit factor: a decade either side of the fitted baseline."""
+
+
+def refit_names(params: Sequence[str]) -> list[str]:
+    """The refit effects of the material parameters ``params`` (e.g. an experiment's ``[fit]
+    free``): ["refit:mu_inf", ...]. KeyError for a name that is no material parameter."""
+    out = [REFIT_PREFIX + p for p in params]
+    for n in out:
+        get(n)
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _refit_effect(param: str) -> Effect:
+    """The effect ``refit:param``: the baseline's material parameter ``param`` times ``factor``
+    (its viscous unit i = 1, 2, ... among the baseline's own, not the dormant ones)."""
+    g = parameters.PATTERN.match(param)
+    if not g or param == "c_d":
+        raise KeyError(f"refit: {param!r} is not a material parameter (expected mu_inf, K_inf, Jm_inf, eps, rho, "
+                       "mu_i, K_i, Jm_i, eta_i)")
+
+    def apply(p, v):
+        m = p.model.material
+        if g.group(2):
+            key, i = g.group(2), int(g.group(3)) - 1
+            n_real = p.info.get("slot_creep", m.n_units)
+            if not 0 <= i < n_real:
+                raise ValueError(f"refit: {param!r}: the baseline has {n_real} viscous unit(s)")
+            value = getattr(m, key)[i]
+        else:
+            value = getattr(m, param)
+        mat = parameters.replace(m, {param: value * jnp.asarray(v["factor"], dtype=float)})
+        return p.replace(model=eqx.tree_at(lambda md: md.material, p.model, mat))
+
+    lo, hi = REFIT_BOUNDS
+    return Effect(REFIT_PREFIX + param,
+                  (Param("factor", 1.0, (lo, hi), 1.0, "log", "-", f"factor on the baseline's {param}"),),
+                  apply, f"the baseline's {param} refitted (a factor on its value)")
+
+
 def applies(name: str, pieces: Pieces) -> bool:
     """True if the effect ``name`` can act in the scenario of ``pieces``: voltage effects need
     a voltage, added mass needs a dynamic (not quasi-static) run, the pre-stress the
@@ -460,6 +510,8 @@ def names(pieces: "Pieces | None" = None) -> list[str]:
 
 
 def get(name: str) -> Effect:
+    if name.startswith(REFIT_PREFIX):
+        return _refit_effect(name[len(REFIT_PREFIX):])
     if name in UNAVAILABLE:
         raise NotImplementedError(f"effect '{name}' is not realisable with the current core: {UNAVAILABLE[name]}")
     if name not in EFFECTS:

@@ -77,6 +77,18 @@ def _figures(diag: Diagnosis, traces: Sequence[Trace], out: Path) -> list[str]:
     return files
 
 
+def _refit_lines(refit) -> list[str]:
+    """The report's lines on the baseline's refit (none without ``--refit``)."""
+    if not refit:
+        return []
+    b = refit["before"]
+    hold = f", holdout {b['rms_holdout']:.3e}" if b["rms_holdout"] is not None else ""
+    factors = ", ".join(f"{n.split(':', 1)[1]} x {v:.4g} +- {refit['stderr'][n]:.2g}"
+                        for n, v in refit["values"].items())
+    return [f"- baseline refitted (its parameters fitted again, alone and then with every candidate): {factors}; "
+            f"before the refit RMS fit {b['rms_fit']:.3e}{hold}"]
+
+
 def write_report(diag: Diagnosis, traces: Sequence[Trace], out, title: str = "Sim-to-real gap diagnosis") -> dict:
     """Write report.md, report.json and PNG figures into ``out``; return {kind: path}."""
     out = Path(out)
@@ -88,6 +100,7 @@ def write_report(diag: Diagnosis, traces: Sequence[Trace], out, title: str = "Si
     L = [f"# {title}", "", f"**Verdict: {diag.verdict}.**", ""] + alt + [
          f"- noise level sigma = {diag.noise:.3e}; baseline fit RMS = {diag.baseline['rms_fit']:.3e}; "
          f"RMS^2/sigma^2 = {diag.chi2_ratio:.2f} (limit {diag.chi2_limit:.2f}); n_fit = {diag.n_fit}",
+         ] + _refit_lines(diag.baseline.get("refit")) + [
          "", "## Where the gap lies (baseline residual)", "",
          "| trace | role | conditions | RMS | mean | loading | unloading | transient | steady | per cycle |",
          "|---|---|---|---|---|---|---|---|---|---|"]

@@ -8,12 +8,14 @@ the secant from off to where it begins to act, ``Effect.starts``), then for ever
 and every pair
 the bounded linear least-squares fit of the baseline residuals on its columns: the step
 ``z``, the SSE the first-order model predicts and the BIC change that SSE would give
-(``criteria``: Gaussian AIC and BIC of ``fitting.selection``).
+(``criteria``: Gaussian AIC and BIC of ``fitting.selection``). With baseline refits
+(``extra``: ``effects.refit_names``), their columns join every candidate's least-squares fit
+(the linearized joint refit), their parameters not counted in its BIC.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -45,16 +47,21 @@ class Screened:
 
 
 def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0: np.ndarray,
-           pairs: bool = True) -> dict:
+           pairs: bool = True, extra: Sequence[str] = (), base: Mapping | None = None) -> dict:
     """Score-type screening at the baseline (every effect off): one forward-difference column
     per parameter (a simulation for a model effect, none for a sensor effect), then for each
     candidate and each pair of candidates the bounded linear least-squares fit of the
-    baseline residuals ``r0`` on its columns. Returns {names tuple: Screened}."""
+    baseline residuals ``r0`` on its columns and those of the effects ``extra`` (the
+    baseline's refits, at their values in ``base``, {name: values}). Returns {names tuple:
+    Screened}; ``Screened.z`` holds the group's parameters, then those of ``extra``."""
     from scipy.optimize import lsq_linear
 
-    plist = fx.param_list(candidates)
-    z_off = np.array([p.z_of(p.off) for _, p in plist])
-    resid_many = residuals_at(fwd, candidates, traces)
+    extra = [e for e in extra if e not in candidates]
+    base = dict(base or {})
+    names = list(candidates) + extra
+    plist = fx.param_list(names)
+    z_off = np.array([p.z_of(base.get(name, {}).get(p.name, p.off)) for name, p in plist])
+    resid_many = residuals_at(fwd, names, traces)
     r_off = resid_many([z_off])[0]  # the baseline (its simulations cached)
     # a threshold effect (Param.probe: the amplifier's slew limit acts only below the command's
     # own rate) has no slope at off: its column is the secant from off to its middle data start
@@ -74,9 +81,9 @@ def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0:
     groups = [(c,) for c in candidates]
     if pairs:
         groups += [(a, b) for i, a in enumerate(candidates) for b in candidates[i + 1:]]
-    out = {}
-    for g in groups:
-        idx = [i for name in g for i in cols[name]]
+
+    def linear_fit(group):
+        idx = [i for name in list(group) + extra for i in cols[name]]
         A = J[:, idx]
         keep = np.any(A != 0.0, axis=0)  # a parameter without effect at the baseline (tau of a unit that is off)
         dz = np.zeros(len(idx))
@@ -84,7 +91,13 @@ def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0:
             sol = lsq_linear(A[:, keep], -r_off, bounds=(-z_off[idx][keep], 1.0 - z_off[idx][keep]))
             dz[keep] = sol.x
         rl = r_off + A @ dz
-        sse = float(rl @ rl)
+        return z_off[idx] + dz, float(rl @ rl)
+
+    if extra:  # the reference: the baseline's refit alone, linearized
+        bic0 = criteria(min(linear_fit(())[1], sse0), n, 0)[1]
+    out = {}
+    for g in groups:
+        z, sse = linear_fit(g)
         k = sum(fx.get(name).n_params for name in g)
-        out[g] = Screened(g, z_off[idx] + dz, sse, criteria(sse, n, k)[1] - bic0)
+        out[g] = Screened(g, z, sse, criteria(sse, n, k)[1] - bic0)
     return out

@@ -40,8 +40,9 @@ def rest_state(m):
 
 class AnalyticForward(fw.Forward):
     """A diagnosis forward model in closed form (no simulation): the quasi-static response
-    y = 1 + k u_e(t)^2 / (1 + rel), u_e the command lagged by ``voltage_lag`` (tau) and rel
-    the ``electrode_stiffness``; the sensor effects as in ``fitting.forward.Forward``."""
+    y = 1 + k u_e(t)^2 / ((1 + rel) f), u_e the command lagged by ``voltage_lag`` (tau), rel
+    the ``electrode_stiffness`` and f the baseline's refit factor on mu_inf (``refit:mu_inf``);
+    the sensor effects as in ``fitting.forward.Forward``."""
 
     def __init__(self, k=0.02 / 14e3 ** 2):
         self.pieces0 = fx.Pieces(None, None, fx.Sensor(), {})
@@ -53,9 +54,10 @@ class AnalyticForward(fw.Forward):
     def _launch(self, effects, trace):
         tau = effects.get("voltage_lag", {}).get("tau", 0.0)
         rel = effects.get("electrode_stiffness", {}).get("rel", 0.0)
+        f = effects.get("refit:mu_inf", {}).get("factor", 1.0)
         u = np.asarray(fx.lowpass(trace.voltage_history, tau, jnp.asarray(trace.time)))
         self.n_sims += 1
-        return 1.0 + self.k * u ** 2 / (1.0 + rel)
+        return 1.0 + self.k * u ** 2 / ((1.0 + rel) * f)
 
     def _finish(self, effects, trace, launched):
         return launched

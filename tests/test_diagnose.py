@@ -55,6 +55,36 @@ def test_offset_shows_in_the_breakdown_before_and_not_after():
     assert d.shrinkage["features"]["mean"]["shrinkage"] > 0.9
 
 
+def test_refit_keeps_a_misfitted_baseline_from_masquerading_as_an_effect():
+    # the data's mu_inf is 10 % above the baseline's: without a refit the electrode stiffness
+    # (a factor on mu_inf) is named; refitting the baseline's mu_inf leaves no gap, and the
+    # stiffness, collinear with it, is no longer significant
+    tr = analytic_traces({"refit:mu_inf": {"factor": 1.1}}, seed=6)
+    assert dg.diagnose(AnalyticForward(), tr, CANDS).best == "electrode_stiffness"
+    d = dg.diagnose(AnalyticForward(), tr, CANDS, refit=["mu_inf"])
+    assert d.verdict == "no significant gap" and d.best is None, d.table()
+    ref = d.baseline["refit"]
+    assert abs(ref["values"]["refit:mu_inf"] - 1.1) < 5 * ref["stderr"]["refit:mu_inf"] + 1e-3
+    assert d.baseline["rms_fit"] < 1.3 * SIGMA < ref["before"]["rms_fit"]
+
+
+def test_refit_fits_the_baseline_jointly_with_the_true_effect():
+    tr = analytic_traces({"voltage_lag": {"tau": 0.02}, "refit:mu_inf": {"factor": 0.9}}, seed=7)
+    d = dg.diagnose(AnalyticForward(), tr, CANDS, refit=["mu_inf"])
+    assert d.best == "voltage_lag", d.table()
+    top = d.ranking[0]
+    for name, param, true in (("voltage_lag", "tau", 0.02), ("refit:mu_inf", "factor", 0.9)):
+        est, sd = top["values"][name][param], top["stderr"][name][param]
+        assert sd > 0 and abs(est - true) < 5 * sd + 1e-3 * true, (name, est, sd)
+    assert top["k"] == 1  # the baseline's own parameter is not the effect's
+    assert d.shrinkage["holdout"]["rms_after"] < 1.3 * SIGMA
+
+
+def test_refit_rejects_what_is_no_material_parameter():
+    with pytest.raises(KeyError, match="not a material parameter"):
+        dg.diagnose(AnalyticForward(), analytic_traces({}, seed=1), CANDS, refit=["tau_1"])
+
+
 def test_report_and_cli_registration(tmp_path):
     tr = analytic_traces({"sensor_offset": {"c": 1e-3}}, seed=5)
     d = dg.diagnose(AnalyticForward(), tr, ["sensor_offset", "voltage_lag"])
@@ -157,3 +187,27 @@ def test_block_simulation_identifies_an_amplifier_slew_limit():
     assert abs(top["values"]["amplifier_slew"]["rate"] - 2e5) < 3 * top["stderr"]["amplifier_slew"]["rate"]
     lag = next(c for c in d.ranking if c["name"] == "voltage_lag")
     assert lag["d_bic"] < -10 and lag["worse_on_holdout"] and not lag["significant"]
+
+
+def test_refit_shows_in_the_report_and_the_cli_reads_the_fit_table(tmp_path):
+    tr = analytic_traces({"refit:mu_inf": {"factor": 1.1}}, seed=6)
+    d = dg.diagnose(AnalyticForward(), tr, ["sensor_offset"], refit=["mu_inf"])
+    report.write_report(d, tr, tmp_path)
+    assert "baseline refitted" in (tmp_path / "report.md").read_text()
+
+    class Exp:
+        path = "exp.toml"
+        fit = type("Fit", (), {"free": ("mu_inf", "mu_1", "c_d")})
+
+    assert fitting_cli.refit_params(None, Exp) == []
+    assert fitting_cli.refit_params("", Exp) == ["mu_inf", "mu_1"]
+    assert fitting_cli.refit_params("Jm_inf, eta_1", Exp) == ["Jm_inf", "eta_1"]
+    Exp.fit.free = ()
+    with pytest.raises(ValueError, match="no \\[fit\\] free"):
+        fitting_cli.refit_params("", Exp)
+
+
+def test_at_bounds_names_parameters_on_a_bound_but_not_at_their_off_value():
+    assert dg.at_bounds({"creep": {"mu": 2e5, "tau": 5.0}}) == ["creep.mu"]  # mu's upper bound
+    assert dg.at_bounds({"creep": {"mu": 0.0, "tau": 50.0}}) == ["creep.tau"]  # mu = 0 is off
+    assert dg.at_bounds({"refit:mu_1": {"factor": 10.0}, "voltage_lag": {"tau": 0.01}}) == ["refit:mu_1.factor"]
