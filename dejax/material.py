@@ -58,6 +58,12 @@ class Material(eqx.Module):
         first-order dependence measured on acrylic films (permittivity falling as the film is
         stretched in plane, i.e. thinned along the field: Wissler and Mazza 2007); I1bar - 3 is
         of second order in the strain.
+      pre: (3,) principal pre-stretches (-) along x, y, z of the equilibrium branch, default
+        1 (the paper's model): a kinematic pre-stretch of the film applied long before the
+        test, so that the equilibrium branch sees F diag(pre) (the stretch from the film's
+        natural state) while the viscous units, relaxed in the pre-stretched reference
+        configuration, see F; isochoric (prod(pre) = 1). The field, the permittivity and
+        its electrostriction refer to the reference (pre-stretched) configuration.
     """
 
     mu_inf: jax.Array
@@ -71,8 +77,10 @@ class Material(eqx.Module):
     eta: jax.Array
     eps_a: jax.Array
     eps_b: jax.Array
+    pre: jax.Array
 
-    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=(), eps_a=0.0, eps_b=0.0):
+    def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=(), eps_a=0.0, eps_b=0.0,
+                 pre=(1.0, 1.0, 1.0)):
         self.mu_inf = jnp.asarray(mu_inf, dtype=float)
         self.K_inf = jnp.asarray(K_inf, dtype=float)
         self.Jm_inf = jnp.asarray(Jm_inf, dtype=float)
@@ -91,6 +99,7 @@ class Material(eqx.Module):
         self.mu, self.K, self.Jm, self.eta = arrs
         self.eps_a = jnp.asarray(eps_a, dtype=float)
         self.eps_b = jnp.asarray(eps_b, dtype=float)
+        self.pre = jnp.broadcast_to(jnp.asarray(pre, dtype=float), (3,))
 
     @property
     def n_units(self) -> int:
@@ -123,6 +132,15 @@ class Material(eqx.Module):
             raise ValueError(f"Material parameter eps = {self.eps} must be >= 0")
         if np.any(np.asarray(self.K) < 0):
             raise ValueError(f"Material parameter K = {self.K} must be >= 0")
+        try:
+            pre = np.asarray(self.pre, dtype=float)
+        except Exception:  # traced: cannot check
+            return self
+        if not np.all(np.isfinite(pre) & (pre > 0)):
+            raise ValueError(f"Material parameter pre = {pre} must be finite and > 0")
+        if abs(float(np.prod(pre)) - 1.0) > 1e-9:
+            raise ValueError(f"Material parameter pre = {pre}: a pre-stretch is isochoric, its product "
+                             f"{float(np.prod(pre)):.12g} must be 1")
         return self
 
 
@@ -148,17 +166,21 @@ def equilibrium_energy(F, E, mat: Material, bulk: bool = True):
     ``bulk=False`` leaves out the penalty K_inf/2 (J - 1)^2 (the mixed form supplies the
     volumetric part itself, see ``mixed_free_energy``). With ``mat.eps_a`` or ``mat.eps_b``
     non-zero the permittivity depends on stretch (electrostriction, see ``Material``; an
-    extension beyond the paper used by the sim-to-real diagnosis)."""
+    extension beyond the paper used by the sim-to-real diagnosis). The Gent and bulk terms
+    see F diag(mat.pre), the stretch from the film's natural state (``Material.pre``)."""
     C = gram3(F)
     J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
+    Fn = F * mat.pre[None, :]  # F diag(pre)
+    Jn = det3(Fn)
+    I1bar_n = Jn ** (-2.0 / 3.0) * jnp.trace(gram3(Fn))
     EE = jnp.dot(E, E)
     safe = jnp.where(EE > 0.0, EE, 1.0)
     lam_E = jnp.sqrt(jnp.where(EE > 0.0, jnp.dot(E, C @ E) / safe, 1.0))  # 1 without field
     eps = mat.eps * (1.0 + mat.eps_a * (I1bar - 3.0) + mat.eps_b * (lam_E - 1.0))
     elec = -0.5 * eps * J * jnp.sum(E[:, None] * inv3(C) * E[None, :])
-    psi = gent_energy(I1bar, mat.mu_inf, mat.Jm_inf) + elec
-    return psi + 0.5 * mat.K_inf * (J - 1.0) ** 2 if bulk else psi
+    psi = gent_energy(I1bar_n, mat.mu_inf, mat.Jm_inf) + elec
+    return psi + 0.5 * mat.K_inf * (Jn - 1.0) ** 2 if bulk else psi
 
 
 def _viscous_invariants(F, Cv):
@@ -207,10 +229,9 @@ def mixed_free_energy(F, E, Cv, p, mat: Material):
 
 
 def min_gent_margin(F, Cv, mat: Material):
-    """Smallest Gent margin H over the equilibrium branch and every viscous unit."""
-    C = gram3(F)
-    J = det3(F)
-    h = gent_margin(J ** (-2.0 / 3.0) * jnp.trace(C), mat.Jm_inf)
+    """Smallest Gent margin H over the equilibrium branch (at F diag(mat.pre)) and every viscous unit."""
+    Fn = F * mat.pre[None, :]
+    h = gent_margin(det3(Fn) ** (-2.0 / 3.0) * jnp.trace(gram3(Fn)), mat.Jm_inf)
     if mat.n_units:
         def unit(Cv_s, Jm):
             Je, I1e = _viscous_invariants(F, Cv_s)

@@ -32,6 +32,9 @@ electrode_stiffness rel (-)                                     mu_inf -> mu_inf
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
 prestress           s0 (Pa)                                     dead traction s0 on the free faces
                                                                 (block: lateral, tube: axial end)
+prestretch          lam (-)                                     kinematic pre-stretch (Material.pre) of
+                                                                the equilibrium branch, held by the
+                                                                frame's dead load on the free faces
 sensor_offset       c (output units; kPa for a stress)          y -> y + c
 sensor_drift        rate (output units / s; kPa/s)             y -> y + rate t
 sensor_latency      delay (s)                                   y(t) -> y(t - delay)
@@ -42,8 +45,7 @@ candidate by ``dejax diagnose --refit``): ``refit:NAME`` for a material paramete
 ``dejax.parameters`` (mu_inf, Jm_inf, mu_1, eta_1, ...), one parameter ``factor`` (log scale,
 off 1, bounds [1/10, 10]) multiplying the baseline's value (``refit_names``).
 
-Not realisable without core changes (``UNAVAILABLE``): ``mullins`` and a kinematic
-``prestretch``; see the messages there.
+Not realisable without core changes (``UNAVAILABLE``): ``mullins``; see the message there.
 
 Normalized parameters (what the diagnosis's screening and fits move): each parameter maps
 its bounds onto z in [0, 1], linearly or in log scale (``Param.z_of``, ``Param.from_z``,
@@ -64,7 +66,7 @@ import numpy as np
 
 from dejax import integrate as it
 from dejax import parameters
-from dejax.material import Material
+from dejax.material import Material, equilibrium_energy
 
 __all__ = [
     "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "slew_active", "SLEW_OFF",
@@ -361,14 +363,39 @@ def _mass(p, v):
     return p.replace(model=eqx.tree_at(lambda md: md.mass_e, p.model, p.model.mass_e * (1.0 + v["rel"])))
 
 
+def _prestress_unit(p, name: str):
+    unit = p.info.get("prestress_load")
+    if unit is None:
+        raise ValueError(f"the {name} effect needs a block (free faces x1, y1) or a rolled tube (free end 'top'): "
+                         "no unit face load in the pieces")
+    return jnp.asarray(unit)
+
+
 def _prestress(p, v):
     # a dead nominal traction s0 on the scenario's free faces (block: equal-biaxial on x = L and
     # y = L; tube: axial on the free end), the consistent loads per unit stress from make_pieces
-    unit = p.info.get("prestress_load")
-    if unit is None:
-        raise ValueError("the prestress effect needs a block (free faces x1, y1) or a rolled tube (free end 'top'): "
-                         "no unit face load in the pieces")
-    return p.replace(model=eqx.tree_at(lambda md: md.dead_load, p.model, v["s0"] * jnp.asarray(unit)))
+    unit = _prestress_unit(p, "prestress")
+    return p.replace(model=eqx.tree_at(lambda md: md.dead_load, p.model, p.model.dead_load + v["s0"] * unit))
+
+
+def prestretch_of(lam, mode: str):
+    """(3,) principal pre-stretches of an isochoric pre-stretch lam: "biaxial" (block: lam in
+    x and y, lam^-2 through the thickness z) or "axial" (tube: lam along its axis x, lam^-1/2
+    across)."""
+    lam = jnp.asarray(lam, dtype=float)
+    return jnp.stack([lam, lam, lam ** -2.0]) if mode == "biaxial" else jnp.stack([lam, lam ** -0.5, lam ** -0.5])
+
+
+def _prestretch(p, v):
+    # the film pre-stretched by lam long before the test (Material.pre: the equilibrium branch
+    # sees F diag(pre), the relaxed viscous units F), held in the reference configuration by the
+    # frame's dead load on the free faces: the nominal stress P_xx - P_zz of the equilibrium
+    # branch at F = I (the faces across the pre-stretch traction-free)
+    unit = _prestress_unit(p, "prestretch")
+    mat = eqx.tree_at(lambda m: m.pre, p.model.material, prestretch_of(v["lam"], p.info["prestretch_mode"]))
+    P = jax.grad(equilibrium_energy)(jnp.eye(3), jnp.zeros(3), mat)
+    load = p.model.dead_load + (P[0, 0] - P[2, 2]) * unit
+    return p.replace(model=eqx.tree_at(lambda md: (md.material, md.dead_load), p.model, (mat, load)))
 
 
 def _output_unit(p) -> float:
@@ -427,6 +454,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("prestress", (Param("s0", 0.0, (0.0, 1e5), 0.0, unit="Pa", doc="nominal in-plane dead-load stress"),),
            _prestress, "equibiaxial in-plane dead load (pre-stress): a nominal traction s0 on the free lateral "
            "faces (the film pulled by its frame or weights)", needs=("prestress_load",)),
+    Effect("prestretch", (Param("lam", 1.0, (1.0, 3.0), 1.5, doc="in-plane (block) or axial (tube) pre-stretch"),),
+           _prestretch, "kinematic pre-stretch of the film, applied long before the test (viscous units relaxed) "
+           "and held by its frame: the equilibrium branch stretched by lam from its natural state "
+           "(Material.pre), the frame's dead load on the free faces balancing it",
+           needs=("prestress_load",)),
     Effect("sensor_offset", (Param("c", 0.0, (-1.0, 1.0), 0.0, unit="output"),), _offset,
            "constant sensor offset", "sensor"),
     Effect("sensor_drift", (Param("rate", 0.0, (-1.0, 1.0), 0.0, unit="output/s"),), _drift,
@@ -441,12 +473,6 @@ UNAVAILABLE = {
         "carried in dejax.integrate.State next to Cv, updated after each converged step, and a free energy "
         "psi(F, E, Cv, d) = (1 - d(I1max)) psi_inf + ... in dejax.material.free_energy (with the matching "
         "stress/tangent and its derivative rule). The current State and free_energy have no such slot."),
-    "prestretch": (
-        "A kinematic pre-stretch (film stretched on a frame before the electrodes act) needs either "
-        "prescribed-motion channels holding the free faces of the block (dejax.scenarios.block has none; "
-        "only uniaxial has one motion channel) or a stress-free intermediate configuration F = Fe Fp with a "
-        "per-Gauss-point Fp = diag(lp, lp, 1/lp^2) in dejax.material. Available instead: 'prestress', "
-        "a dead in-plane load that produces the pre-stretch by force."),
 }
 
 
@@ -531,7 +557,8 @@ def augment_material(material: Material, n_extra: int = 2, Jm: float = 5.0) -> M
                     mu=list(np.asarray(material.mu)) + [mu0] * n_extra,
                     K=list(np.asarray(material.K)) + [ratio * mu0] * n_extra,
                     Jm=list(np.asarray(material.Jm)) + [Jm] * n_extra,
-                    eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a, eps_b=material.eps_b)
+                    eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a,
+                    eps_b=material.eps_b, pre=material.pre)
 
 
 def make_pieces(problem) -> Pieces:
@@ -554,8 +581,10 @@ def make_pieces(problem) -> Pieces:
         if problem.name == "block" and {"x1", "y1"} <= set(mesh.node_sets):
             info["prestress_load"] = np.asarray(mdl.face_traction_load(mesh, "x1", (1.0, 0.0, 0.0))
                                                 + mdl.face_traction_load(mesh, "y1", (0.0, 1.0, 0.0)))
+            info["prestretch_mode"] = "biaxial"
         elif problem.name == "rolled":  # axial pre-load of the free end (a weight, a pre-stretched roll)
             info["prestress_load"] = np.asarray(mdl.face_traction_load(mesh, "top", (1.0, 0.0, 0.0)))
+            info["prestretch_mode"] = "axial"
     return Pieces(problem.model, loading, Sensor(), info)
 
 

@@ -1,4 +1,6 @@
 """fitting.effects: closed-form checks of the voltage filters, sensor transform and leaf edits."""
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -91,9 +93,69 @@ def test_prestress_resultant():
     assert abs(f[:, 0, 2].sum()) < 1e-15
 
 
+def test_prestretch_block_under_voltage_matches_the_closed_form():
+    """A 1-element hyperelastic block pre-stretched equibiaxially by lam_p = 1.4 (``prestretch``:
+    the equilibrium branch sees F diag(lam_p, lam_p, lam_p^-2), the frame's dead load holds it)
+    under a voltage ramp to 14 kV, quasi-static: without voltage it stays in its reference
+    configuration; at 14 kV its lateral stretch is the stationary point of Gent(lam lam_p) -
+    eps/2 (phi/H)^2 lam^4 - 2 s0 lam on the incompressible equibiaxial path, with s0 = dGent/dlam / 2
+    at lam = 1 (the frame's stress), written here by hand and solved by scipy."""
+    from scipy import optimize
+
+    mu, Jm, eps, H, phi, lp = 67e3, 15.0, 4e-11, 1e-3, 14e3, 1.4
+    mat = sc.block_material(mu=[], K=[], Jm=[], eta=[])
+    prob = sc.block(material=mat, voltage=loads.PiecewiseLinear([0.0, 0.1, 1.0], [0.0, 0.0, phi]))
+    pieces = fx.make_pieces(dataclasses.replace(prob, model=eqx.tree_at(lambda m: m.material, prob.model,
+                                                                        fx.augment_material(mat))))
+    times = np.linspace(0.0, 1.0, 11)
+    out = {}
+    for lam in (1.0, lp):
+        q = fx.apply_effects(pieces, {"prestretch": {"lam": lam}})
+        sol = it.simulate(q.model, q.loading, times, prob.output_fn, it.QuasiStatic()).check()
+        out[lam] = np.asarray(sol.outputs["lateral_stretch"])
+    # no voltage yet: held where it is, to the compressibility (the frame stress ~1e5 Pa over K = 6.7 GPa)
+    assert abs(out[lp][1] - 1.0) < 2e-5
+
+    def gent(x):  # Gent energy of the equibiaxial stretch x from the natural state (incompressible)
+        return -0.5 * mu * Jm * np.log(1.0 - (2.0 * x ** 2 + x ** -4 - 3.0) / Jm)
+
+    d = lambda f, x, h=1e-6: (f(x + h) - f(x - h)) / (2.0 * h)  # noqa: E731
+    s0 = 0.5 * d(lambda l: gent(l * lp), 1.0)
+    ref = optimize.brentq(lambda l: d(lambda x: gent(x * lp) - 0.5 * eps * (phi / H) ** 2 * x ** 4 - 2 * s0 * x, l),
+                          1.0, 1.5, xtol=1e-14)
+    assert out[lp][-1] == pytest.approx(ref, rel=2e-5)
+    # and larger than without the pre-stretch: the frame-held film is softer per unit relative
+    # stretch (lam_p^2 Gent''(lam_p) = 0.74 Gent''(1) on this path, Gent''(1) = 12 mu)
+    d2 = lambda f, x, h=1e-4: (f(x + h) - 2.0 * f(x) + f(x - h)) / h ** 2  # noqa: E731
+    assert lp ** 2 * d2(gent, lp) < 0.8 * d2(gent, 1.0)
+    assert out[lp][-1] > out[1.0][-1] > 1.0
+
+
+def test_prestretch_is_isochoric_and_only_the_equilibrium_branch_sees_it():
+    from dejax import material as mt
+
+    with pytest.raises(ValueError, match="isochoric"):
+        mt.Material(67e3, 6.7e9, 15.0, 4e-11, 1100.0, pre=(1.5, 1.5, 1.0)).validate()
+    pre = fx.prestretch_of(1.3, "axial")
+    assert float(jnp.prod(pre)) == pytest.approx(1.0, rel=1e-14)
+    m0 = sc.block_material()
+    m1 = eqx.tree_at(lambda m: m.pre, m0, pre)
+    F = jnp.array([[1.1, 0.05, 0.0], [0.02, 0.95, 0.03], [0.0, 0.01, 0.97]])
+    E = jnp.array([0.0, 2e6, 1e7])
+    # the equilibrium branch at F diag(pre), the electrostatic term at F
+    elec = mt.equilibrium_energy(F, E, m0) - mt.equilibrium_energy(F, jnp.zeros(3), m0)
+    expect = mt.equilibrium_energy(F * pre[None, :], jnp.zeros(3), m0) + elec
+    assert float(mt.equilibrium_energy(F, E, m1)) == pytest.approx(float(expect), rel=1e-13)
+    # the viscous units do not see it
+    Cv = jnp.broadcast_to(jnp.eye(3), (1, 3, 3))
+    dv = lambda m: mt.free_energy(F, E, Cv, m) - mt.equilibrium_energy(F, E, m)  # noqa: E731
+    assert float(dv(m1)) == pytest.approx(float(dv(m0)), rel=1e-13)
+
+
 def test_names_and_errors():
     assert {"creep", "hysteresis", "voltage_lag", "leakage", "electrostriction", "electrode_stiffness",
-            "added_mass", "prestress", "sensor_offset", "sensor_drift", "sensor_latency"} <= set(fx.names())
+            "added_mass", "prestress", "prestretch", "sensor_offset", "sensor_drift",
+            "sensor_latency"} <= set(fx.names())
     with pytest.raises(NotImplementedError, match="history variable"):
         fx.get("mullins")
     with pytest.raises(KeyError):
