@@ -14,8 +14,14 @@ effect ranks first (and significant), pairs: both true effects in the top three,
 gap's shrinkage with the true effect, and the controls' verdicts.
 
     python bench/diagnose_validation.py [--size small|full] [--truth reduced|forward] [--jobs N] [--json out.json]
+                                        [--misfit M [--refit]]
 
-full: 3 controls, 11 effects at small, medium and large magnitude, 4 pairs (40 cases);
+``--misfit M``: the diagnosis's baseline is mis-fitted, mu_inf x (1 + M), mu_1 x (1 - M),
+eta_1 x (1 + M) against the truth's (a baseline whose parameters a fit left off the true ones:
+its error must not be named as an effect); ``--refit`` refits those three with every
+candidate (``dejax diagnose --refit``).
+
+full: 3 controls, 12 effects at small, medium and large magnitude, 4 pairs (43 cases);
 small: 3 controls, the large magnitudes, 2 pairs. Not in the truth set: added_mass (the
 reduced model has no inertia; at 1-10 Hz a 1 mm block shows none) and the second-order
 electrostriction eps_a (I1bar - 3 ~ 1e-3 here: below the noise); both stay candidates.
@@ -40,6 +46,7 @@ TRUTHS = {  # effect: (small, medium, large)
     "mu_drift": ({"rate": 0.003}, {"rate": 0.01}, {"rate": 0.03}),
     "electrode_stiffness": ({"rel": 0.05}, {"rel": 0.15}, {"rel": 0.3}),
     "prestress": ({"s0": 3e3}, {"s0": 8e3}, {"s0": 15e3}),
+    "prestretch": ({"lam": 1.01}, {"lam": 1.03}, {"lam": 1.1}),
     "electrostriction": ({"eps_b": -0.05}, {"eps_b": -0.15}, {"eps_b": -0.3}),
     "sensor_offset": ({"c": 2e-4}, {"c": 6e-4}, {"c": 2e-3}),
     "sensor_drift": ({"rate": 1e-4}, {"rate": 3e-4}, {"rate": 1e-3}),
@@ -98,12 +105,24 @@ def with_noise(traces, noise, seed):
             for tr in traces]
 
 
+REFIT = ("mu_inf", "mu_1", "eta_1")  # the baseline parameters --misfit perturbs and --refit refits
+
+
+def misfit_material(m: float):
+    """The paper's block material with mu_inf x (1 + m), mu_1 x (1 - m), eta_1 x (1 + m)."""
+    from dejax import scenarios as sc
+
+    base = sc.block_material()
+    return sc.block_material(mu_inf=float(base.mu_inf) * (1 + m), mu=[float(base.mu[0]) * (1 - m)],
+                             eta=[float(base.eta[0]) * (1 + m)])
+
+
 def run_case(args):
-    label, truth, seed, source, noise, fit_top = args
+    label, truth, seed, source, noise, fit_top, misfit, refit = args
     from fitting import diagnose as dg
     from fitting.gap import gap
 
-    fwd = dg.block_forward(pad_to=120)
+    fwd = dg.block_forward(material=misfit_material(misfit) if misfit else None, pad_to=120)
     resolve = None
     if source == "reduced":
         clean = clean_traces(truth)
@@ -117,7 +136,7 @@ def run_case(args):
     else:
         traces = dg.synthetic_traces(fwd, CONDS, truth, noise, seed=seed, n_cycles=3, samples_per_cycle=40)
     t0 = time.time()
-    d = dg.diagnose(fwd, traces, fit_top=fit_top)
+    d = dg.diagnose(fwd, traces, fit_top=fit_top, refit=REFIT if refit else ())
     top = d.ranking[0]["name"] if d.ranking else None
     ranked = [c["name"] for c in d.ranking]
     parts = lambda name: set(name.split("+"))  # noqa: E731  (a pair candidate is "a+b")
@@ -152,6 +171,9 @@ def main(argv=None):
     ap.add_argument("--fit-top", type=int, default=3, help="candidates fitted after the screening (dejax diagnose --fit-top)")
     ap.add_argument("--truth", choices=["reduced", "forward"], default="reduced",
                     help="truth generator: the independent reduced block (default) or the forward code")
+    ap.add_argument("--misfit", type=float, default=0.0,
+                    help="relative error of the baseline's mu_inf, mu_1, eta_1 against the truth (e.g. 0.05)")
+    ap.add_argument("--refit", action="store_true", help="refit mu_inf, mu_1, eta_1 with every candidate")
     a = ap.parse_args(argv)
     cs = cases(a.size)
     if a.only:
@@ -159,8 +181,8 @@ def main(argv=None):
         cs = [c for c in cs if any(c[0].startswith(k) for k in keys)]
     noise = noise_sigma()
     print(f"truth: {a.truth}; noise sigma {noise:.3g} (stretch units, {100 * NOISE_REL:g} % of the 14 kV amplitude); "
-          f"{len(cs)} cases", flush=True)
-    work = [(lab, tr, 1000 + i, a.truth, noise, a.fit_top) for i, (lab, tr) in enumerate(cs)]
+          f"{len(cs)} cases; baseline misfit {a.misfit:g}{', refitted' if a.refit else ''}", flush=True)
+    work = [(lab, tr, 1000 + i, a.truth, noise, a.fit_top, a.misfit, a.refit) for i, (lab, tr) in enumerate(cs)]
     t0 = time.time()
     if a.jobs > 1:
         with mp.get_context("spawn").Pool(a.jobs) as pool:

@@ -273,7 +273,8 @@ class State(eqx.Module):
     """Time-stepping state: t (s), q, v, qdd, a (n_dofs,), Cv (n_el, n_gp, n_units, 3, 3),
     p (n_el, n_p) element pressure unknowns (Pa; mixed form, None = 0); Cv_prev and h_prev
     (s): the viscous state one step back and that step's size (h_prev = 0: no history), for
-    the BDF2 flow-rule update (None: backward Euler)."""
+    the BDF2 flow-rule update (None: backward Euler); wmax (n_el, n_gp): the Mullins
+    history, the largest equilibrium Gent energy each point has seen (J/m^3; None = 0)."""
 
     t: jax.Array
     q: jax.Array
@@ -284,6 +285,7 @@ class State(eqx.Module):
     p: jax.Array | None = None
     Cv_prev: jax.Array | None = None
     h_prev: jax.Array | None = None
+    wmax: jax.Array | None = None
 
 
 def initial_acceleration(model: Model, rhs, dense_limit: int = 4000):
@@ -299,8 +301,9 @@ def initial_acceleration(model: Model, rhs, dense_limit: int = 4000):
 
 
 def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0, q=None, v=None) -> State:
-    """State at t0: reference (or given) coordinates and velocities, Cv = I, p = 0, and the
-    acceleration consistent with the equations of motion (M qdd = Q_ext - Q_int - C v)."""
+    """State at t0: reference (or given) coordinates and velocities, Cv = I, p = 0, the
+    Mullins history at the start's energy, and the acceleration consistent with the
+    equations of motion (M qdd = Q_ext - Q_int - C v)."""
     q = model.q0 if q is None else jnp.asarray(q, dtype=float)
     v = jnp.zeros_like(q) if v is None else jnp.asarray(v, dtype=float)
     Cv = mdl.initial_viscous_state(model)
@@ -308,12 +311,13 @@ def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0,
     loading = Loading() if loading is None else loading
     phi = loading.phi(t0) if model.field_dirs.shape[0] else jnp.zeros(0)
     E = mdl.nominal_field(model, phi)
-    f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0, p)
+    wmax = mdl.mullins_history(model, q)  # the start's own energy: no softening yet
+    f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0, p, wmax)
     rhs = mdl.reduce(model, mdl.external_force(model) - f_int - model.damping * mdl.mass_apply(model, v))
     qdd_f = initial_acceleration(model, rhs)
     qdd = mdl.expand(model, qdd_f)
     return State(t=jnp.asarray(t0, dtype=float), q=q, v=v, qdd=qdd, a=qdd, Cv=Cv, p=p, Cv_prev=Cv,
-                 h_prev=jnp.asarray(0.0))
+                 h_prev=jnp.asarray(0.0), wmax=wmax)
 
 
 # ----------------------------------------------------------------------------- one step
@@ -346,7 +350,7 @@ def _residual(model: Model, scheme, ctx: _StepContext, z, p):
     """Eq. (28) at q_{n+1}(z), p: reduced forces (n_free,), element volume residuals
     (n_el, n_p; empty in the displacement form) and the updated Cv."""
     q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
-    fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.flow, h, p)
+    fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.flow, h, p, ctx.state.wmax)
     g = jnp.zeros_like(p) if g is None else g
     return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g, Cv1
 
@@ -354,7 +358,7 @@ def _residual(model: Model, scheme, ctx: _StepContext, z, p):
 def _system(model: Model, scheme, ctx: _StepContext, z, p):
     """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
     q, E, h, _ = _step_terms(model, scheme, ctx, z)
-    sys = mdl.element_system(model, q, E, ctx.flow, h, p)
+    sys = mdl.element_system(model, q, E, ctx.flow, h, p, ctx.state.wmax)
     bp, gp = scheme.matrix_coefficients(h)
     if scheme.inertial:
         sys = eqx.tree_at(lambda s: s.Ke, sys, sys.Ke + (bp + gp * model.damping) * mdl.mass_elements(model))
@@ -638,7 +642,8 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = scheme.kinematics(state, h, q1)
         new = State(t=t1, q=q1, v=v1, qdd=qdd1, a=a1, Cv=Cv1, p=p1,
-                    Cv_prev=None if state.Cv_prev is None else state.Cv, h_prev=None if state.h_prev is None else h)
+                    Cv_prev=None if state.Cv_prev is None else state.Cv, h_prev=None if state.h_prev is None else h,
+                    wmax=mdl.mullins_history(model, q1, state.wmax))
         F = mdl.deformation_gradients(model, q1)
         finite = jnp.all(jnp.isfinite(q1)) & jnp.all(jnp.isfinite(Cv1)) & jnp.all(jnp.isfinite(p1))
         inverted = jnp.any(jax.vmap(jax.vmap(det3))(F) <= 0)

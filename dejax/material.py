@@ -21,6 +21,16 @@ Viscous flow (Eq. 37, cleaned up in docs/paper-notes.md)::
 integrated by an implicit step that keeps ``det Cv`` exactly constant: backward Euler
 (Eq. 39, ``viscous_update``) or BDF2 (second order, ``bdf2_flow_step``; the default of
 the time steppers in ``integrate``).
+
+Mullins-type softening (an extension beyond the paper, off by default: ``mullins_d = 0``),
+the pseudo-elastic model of Ogden and Roxburgh (1999) on the equilibrium branch's isochoric
+Gent energy W, with the largest W the point has seen, ``wmax``, as its history variable::
+
+    psi_inf -> eta W + (bulk, electrostatic),  eta = 1 - d erf((wmax - W) / m),
+    wmax_new = max(wmax_old, W)
+
+(eta = 1 on the primary loading path, softer on unloading and reloading below wmax); the
+stress is eta dW/dF (``eta`` held, as Cv_new is), its tangent through eta(F) by autodiff.
 """
 from __future__ import annotations
 
@@ -64,6 +74,9 @@ class Material(eqx.Module):
         natural state) while the viscous units, relaxed in the pre-stretched reference
         configuration, see F; isochoric (prod(pre) = 1). The field, the permittivity and
         its electrostriction refer to the reference (pre-stretched) configuration.
+      mullins_d, mullins_m: Mullins softening (module docstring): the largest relative
+        softening d in [0, 1) (0 = off, the paper's model) and the energy scale m (Pa = J/m^3)
+        over which it develops below the largest energy seen.
     """
 
     mu_inf: jax.Array
@@ -78,9 +91,11 @@ class Material(eqx.Module):
     eps_a: jax.Array
     eps_b: jax.Array
     pre: jax.Array
+    mullins_d: jax.Array
+    mullins_m: jax.Array
 
     def __init__(self, mu_inf, K_inf, Jm_inf, eps, rho, mu=(), K=(), Jm=(), eta=(), eps_a=0.0, eps_b=0.0,
-                 pre=(1.0, 1.0, 1.0)):
+                 pre=(1.0, 1.0, 1.0), mullins_d=0.0, mullins_m=1e4):
         self.mu_inf = jnp.asarray(mu_inf, dtype=float)
         self.K_inf = jnp.asarray(K_inf, dtype=float)
         self.Jm_inf = jnp.asarray(Jm_inf, dtype=float)
@@ -100,6 +115,8 @@ class Material(eqx.Module):
         self.eps_a = jnp.asarray(eps_a, dtype=float)
         self.eps_b = jnp.asarray(eps_b, dtype=float)
         self.pre = jnp.broadcast_to(jnp.asarray(pre, dtype=float), (3,))
+        self.mullins_d = jnp.asarray(mullins_d, dtype=float)
+        self.mullins_m = jnp.asarray(mullins_m, dtype=float)
 
     @property
     def n_units(self) -> int:
@@ -134,8 +151,13 @@ class Material(eqx.Module):
             raise ValueError(f"Material parameter K = {self.K} must be >= 0")
         try:
             pre = np.asarray(self.pre, dtype=float)
+            d, m = float(self.mullins_d), float(self.mullins_m)
         except Exception:  # traced: cannot check
             return self
+        if not 0.0 <= d < 1.0:
+            raise ValueError(f"Material parameter mullins_d = {d} must lie in [0, 1)")
+        if not m > 0.0:
+            raise ValueError(f"Material parameter mullins_m = {m} must be > 0 (Pa)")
         if not np.all(np.isfinite(pre) & (pre > 0)):
             raise ValueError(f"Material parameter pre = {pre} must be finite and > 0")
         if abs(float(np.prod(pre)) - 1.0) > 1e-9:
@@ -160,14 +182,31 @@ def gent_margin(I1bar, Jm):
     return 1.0 - (I1bar - 3.0) / Jm
 
 
-def equilibrium_energy(F, E, mat: Material, bulk: bool = True):
+def equilibrium_gent_energy(F, mat: Material):
+    """W: the equilibrium branch's isochoric Gent energy at F diag(mat.pre) (J/m^3), the
+    energy Mullins softening measures (``mullins_factor``)."""
+    Fn = F * mat.pre[None, :]
+    return gent_energy(det3(Fn) ** (-2.0 / 3.0) * jnp.trace(gram3(Fn)), mat.mu_inf, mat.Jm_inf)
+
+
+def mullins_factor(F, wmax_old, mat: Material):
+    """(eta, wmax_new): the Ogden-Roxburgh softening factor eta = 1 - d erf((wmax - W)/m) at
+    F with the history wmax_new = max(wmax_old, W) (J/m^3); eta = 1 where d = 0 (off) and on
+    the primary loading path (W = wmax)."""
+    W = equilibrium_gent_energy(F, mat)
+    wmax = jnp.maximum(wmax_old, W)
+    return 1.0 - mat.mullins_d * jax.scipy.special.erf((wmax - W) / mat.mullins_m), wmax
+
+
+def equilibrium_energy(F, E, mat: Material, bulk: bool = True, softening=1.0):
     """psi_inf(F, E): Gent + bulk + electrostatic (Eq. 18). J/m^3.
 
     ``bulk=False`` leaves out the penalty K_inf/2 (J - 1)^2 (the mixed form supplies the
     volumetric part itself, see ``mixed_free_energy``). With ``mat.eps_a`` or ``mat.eps_b``
     non-zero the permittivity depends on stretch (electrostriction, see ``Material``; an
     extension beyond the paper used by the sim-to-real diagnosis). The Gent and bulk terms
-    see F diag(mat.pre), the stretch from the film's natural state (``Material.pre``)."""
+    see F diag(mat.pre), the stretch from the film's natural state (``Material.pre``);
+    ``softening`` multiplies the Gent term (the Mullins factor eta, held: ``mullins_factor``)."""
     C = gram3(F)
     J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
@@ -179,7 +218,7 @@ def equilibrium_energy(F, E, mat: Material, bulk: bool = True):
     lam_E = jnp.sqrt(jnp.where(EE > 0.0, jnp.dot(E, C @ E) / safe, 1.0))  # 1 without field
     eps = mat.eps * (1.0 + mat.eps_a * (I1bar - 3.0) + mat.eps_b * (lam_E - 1.0))
     elec = -0.5 * eps * J * jnp.sum(E[:, None] * inv3(C) * E[None, :])
-    psi = gent_energy(I1bar_n, mat.mu_inf, mat.Jm_inf) + elec
+    psi = softening * gent_energy(I1bar_n, mat.mu_inf, mat.Jm_inf) + elec
     return psi + 0.5 * mat.K_inf * (Jn - 1.0) ** 2 if bulk else psi
 
 
@@ -199,11 +238,12 @@ def viscous_energy(F, Cv, mu, K, Jm, bulk: bool = True):
     return psi + 0.5 * K * (Je - 1.0) ** 2 if bulk else psi
 
 
-def free_energy(F, E, Cv, mat: Material, bulk: bool = True):
+def free_energy(F, E, Cv, mat: Material, bulk: bool = True, softening=1.0):
     """Total free energy psi = psi_inf + sum_s psi_s (Eq. 20). Cv: (n_units, 3, 3).
 
-    ``bulk=False``: the isochoric and electrostatic part only (no penalty bulk terms)."""
-    psi = equilibrium_energy(F, E, mat, bulk)
+    ``bulk=False``: the isochoric and electrostatic part only (no penalty bulk terms);
+    ``softening``: the Mullins factor on the equilibrium Gent term (held, 1 = none)."""
+    psi = equilibrium_energy(F, E, mat, bulk, softening)
     if mat.n_units:
         unit = lambda Cv_s, mu, K, Jm: viscous_energy(F, Cv_s, mu, K, Jm, bulk)
         psi = psi + jnp.sum(jax.vmap(unit)(Cv, mat.mu, mat.K, mat.Jm))
@@ -218,14 +258,14 @@ def bulk_modulus(mat: Material):
     return mat.K_inf + jnp.sum(mat.K)
 
 
-def mixed_free_energy(F, E, Cv, p, mat: Material):
+def mixed_free_energy(F, E, Cv, p, mat: Material, softening=1.0):
     """Perturbed-Lagrangian free energy psi_iso + p (J - 1) - p^2 / (2 K) (J/m^3).
 
     p (Pa) is the pressure at the point (the model interpolates it per element); eliminating
     it pointwise (p = K (J - 1)) gives back ``free_energy``. K = ``bulk_modulus(mat)``
     may be ``inf``: then p is the Lagrange multiplier of J = 1."""
     K = bulk_modulus(mat)
-    return free_energy(F, E, Cv, mat, bulk=False) + p * (det3(F) - 1.0) - 0.5 * p * p / K
+    return free_energy(F, E, Cv, mat, bulk=False, softening=softening) + p * (det3(F) - 1.0) - 0.5 * p * p / K
 
 
 def min_gent_margin(F, Cv, mat: Material):
@@ -438,46 +478,49 @@ def update_all_units(F, Cv_old, dt, mat: Material):
         F, flow.base, flow.base_inv, flow.det_base, flow.det_old, flow.dt, mat.mu, mat.eta, mat.Jm)
 
 
-def stress_and_update(F, E, Cv_old, dt, mat: Material):
+def stress_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     """First Piola-Kirchhoff stress at the end of a step and the updated Cv.
 
-    P = d psi / d F at fixed Cv_new, with Cv_new = viscous_update(F, Cv_old); the
-    total derivative dP/dF (``jax.jacfwd`` of this function) is the consistent
-    tangent including dCv/dF.
+    P = d psi / d F at fixed Cv_new and Mullins factor eta (``mullins_factor`` from the
+    point's history ``wmax``, J/m^3), with Cv_new = viscous_update(F, Cv_old); the total
+    derivative dP/dF (``jax.jacfwd`` of this function) is the consistent tangent including
+    dCv/dF and d eta/dF.
 
     Returns:
       P (3, 3) in Pa, Cv_new (n_units, 3, 3).
     """
     Cv_new = update_all_units(F, Cv_old, dt, mat)
-    P = jax.grad(free_energy, argnums=0)(F, E, Cv_new, mat)
+    soft, _ = mullins_factor(F, wmax, mat)
+    P = jax.grad(free_energy, argnums=0)(F, E, Cv_new, mat, True, soft)
     return P, Cv_new
 
 
-def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material):
+def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     """(P, D, Cv_new) with D = dP/dF (3, 3, 3, 3), the consistent tangent."""
 
     def f(F_):
-        P, Cv_new = stress_and_update(F_, E, Cv_old, dt, mat)
+        P, Cv_new = stress_and_update(F_, E, Cv_old, dt, mat, wmax)
         return P, (P, Cv_new)
 
     D, (P, Cv_new) = jax.jacfwd(f, has_aux=True)(F)
     return P, D, Cv_new
 
 
-def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material):
+def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
     """Mixed form at one point: (P (3, 3) Pa, r_p = d psi / d p = J - 1 - p / K (-), Cv_new)."""
     Cv_new = update_all_units(F, Cv_old, dt, mat)
-    P, r_p = jax.grad(mixed_free_energy, argnums=(0, 3))(F, E, Cv_new, p, mat)
+    soft, _ = mullins_factor(F, wmax, mat)
+    P, r_p = jax.grad(mixed_free_energy, argnums=(0, 3))(F, E, Cv_new, p, mat, soft)
     return P, r_p, Cv_new
 
 
-def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material):
+def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
     """Mixed form at one point: (P, r_p, D = dP/dF (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new).
 
     D is the consistent tangent (dCv/dF included); dr_p/dF = dP/dp (= cof F)."""
 
     def f(F_, p_):
-        P, r_p, Cv_new = mixed_stress_and_update(F_, E, Cv_old, dt, p_, mat)
+        P, r_p, Cv_new = mixed_stress_and_update(F_, E, Cv_old, dt, p_, mat, wmax)
         return (P, r_p), (P, r_p, Cv_new)
 
     ((D, P_p), (_, r_pp)), (P, r_p, Cv_new) = jax.jacfwd(f, argnums=(0, 1), has_aux=True)(F, p)

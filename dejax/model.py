@@ -28,7 +28,7 @@ from . import element as el
 from .constraints import Constraints
 from .material import (Material, backward_euler_flow_step, bdf2_flow_step, bulk_modulus, free_energy, min_gent_margin,
                        mixed_free_energy, mixed_stress_and_update, mixed_tangent_and_update, stress_and_update,
-                       stress_tangent_and_update)
+                       stress_tangent_and_update, mullins_factor)
 from .mesh import Mesh, Static
 
 
@@ -245,14 +245,31 @@ def flow_step(model: Model, state, h, method: str = "bdf2"):
 
 
 def _per_point(fn):
-    """vmap a point function fn(F, E, Cv_old, dt, mat) over elements and Gauss points."""
-    return jax.vmap(jax.vmap(fn, in_axes=(0, 0, 0, None, None)), in_axes=(0, 0, 0, None, None))
+    """vmap a point function fn(F, E, Cv_old, dt, mat, wmax) over elements and Gauss points."""
+    return jax.vmap(jax.vmap(fn, in_axes=(0, 0, 0, None, None, 0)), in_axes=(0, 0, 0, None, None, 0))
 
 
 def _per_point_mixed(fn):
-    """vmap fn(F, E, Cv_old, dt, p, mat) over elements and Gauss points (p per point)."""
-    inner = jax.vmap(fn, in_axes=(0, 0, 0, None, 0, None))
-    return jax.vmap(inner, in_axes=(0, 0, 0, None, 0, None))
+    """vmap fn(F, E, Cv_old, dt, p, mat, wmax) over elements and Gauss points (p per point)."""
+    inner = jax.vmap(fn, in_axes=(0, 0, 0, None, 0, None, 0))
+    return jax.vmap(inner, in_axes=(0, 0, 0, None, 0, None, 0))
+
+
+def initial_history(model: Model) -> jax.Array:
+    """(n_el, n_gp) Mullins history wmax = 0 (J/m^3): the material has seen no energy."""
+    return jnp.zeros(model.dV.shape)
+
+
+def _history(model: Model, wmax):
+    return initial_history(model) if wmax is None else wmax
+
+
+def mullins_history(model: Model, q, wmax_old=None) -> jax.Array:
+    """(n_el, n_gp) wmax_new = max(wmax_old, W(F(q))), W the equilibrium Gent energy
+    (``material.mullins_factor``): the history after a converged step."""
+    F = deformation_gradients(model, q)
+    fn = jax.vmap(jax.vmap(mullins_factor, in_axes=(0, 0, None)), in_axes=(0, 0, None))
+    return fn(F, _history(model, wmax_old), model.material)[1]
 
 
 def initial_pressure(model: Model) -> jax.Array:
@@ -280,43 +297,49 @@ def _nodal(model: Model, P):
     return jnp.einsum("eg,egaj,egij->eai", model.dV, model.G, P)
 
 
-def element_forces(model: Model, q, E, Cv_old, dt, p=None):
+def element_forces(model: Model, q, E, Cv_old, dt, p=None, wmax=None):
     """Element force vectors, pressure residuals and the viscous state at the end of a step.
 
     Args:
       q: (n_dofs,) coordinates; E: (n_el, n_gp, 3) nominal field (V/m); Cv_old:
       (n_el, n_gp, n_units, 3, 3) at the step's start; dt: step (s); p: (n_el, n_p)
-      element pressure unknowns (Pa, mixed form; None = 0).
+      element pressure unknowns (Pa, mixed form; None = 0); wmax: (n_el, n_gp) Mullins
+      history at the step's start (J/m^3; None = 0).
     Returns:
       fe (n_el, 32, 3) in N (N m for gradient slots), g (n_el, n_p) = int N_k (J - 1 - p/K)
       dV in m^3 (None in the displacement form), Cv_new like Cv_old.
     """
     F = deformation_gradients(model, q)
     if not model.structure.mixed:
-        P, Cv_new = _per_point(stress_and_update)(F, E, Cv_old, dt, model.material)
+        P, Cv_new = _per_point(stress_and_update)(F, E, Cv_old, dt, model.material, _history(model, wmax))
         return _nodal(model, P), None, Cv_new
     P, r_p, Cv_new = _per_point_mixed(mixed_stress_and_update)(F, E, Cv_old, dt, pressure_at_points(model, p),
-                                                                model.material)
+                                                                model.material, _history(model, wmax))
     return _nodal(model, P), jnp.einsum("eg,gk,eg->ek", model.dV, _basis(model), r_p), Cv_new
 
 
-def internal_force(model: Model, q, E, Cv_old, dt, p=None):
+def internal_force(model: Model, q, E, Cv_old, dt, p=None, wmax=None):
     """Internal force (n_dofs,) in N and the viscous state it implies at the end of a step
     (arguments as ``element_forces``)."""
-    fe, _, Cv_new = element_forces(model, q, E, Cv_old, dt, p)
+    fe, _, Cv_new = element_forces(model, q, E, Cv_old, dt, p, wmax)
     return scatter_slots(model, fe), Cv_new
 
 
-def internal_force_at(model: Model, q, E, Cv, p=None):
-    """(n_dofs,) internal force with the viscous state Cv held fixed (no update)."""
+def internal_force_at(model: Model, q, E, Cv, p=None, wmax=None):
+    """(n_dofs,) internal force with the viscous state Cv held fixed (no update); wmax: the
+    Mullins history (n_el, n_gp) the state's softening is measured against (None = 0)."""
     F = deformation_gradients(model, q)
+    mat = model.material
+    soft = jax.vmap(jax.vmap(lambda F_, w: mullins_factor(F_, w, mat)[0]))(F, _history(model, wmax))
     if model.structure.mixed:
         grad = jax.grad(mixed_free_energy, argnums=0)
         pg = pressure_at_points(model, p)
-        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))(F, E, Cv, pg, model.material)
+        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, 0, None, 0)),
+                     in_axes=(0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
     else:
         grad = jax.grad(free_energy, argnums=0)
-        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
+        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, None, None, 0)),
+                     in_axes=(0, 0, 0, None, None, 0))(F, E, Cv, mat, True, soft)
     return scatter_slots(model, _nodal(model, P))
 
 
@@ -337,16 +360,17 @@ class ElementSystem(eqx.Module):
     Cv_new: jax.Array
 
 
-def element_system(model: Model, q, E, Cv_old, dt, p=None) -> ElementSystem:
+def element_system(model: Model, q, E, Cv_old, dt, p=None, wmax=None) -> ElementSystem:
     """Element forces and consistent tangents (arguments as ``element_forces``)."""
     F = deformation_gradients(model, q)
     n_el = F.shape[0]
+    wmax = _history(model, wmax)
     if not model.structure.mixed:
-        P, D, Cv_new = _per_point(stress_tangent_and_update)(F, E, Cv_old, dt, model.material)
+        P, D, Cv_new = _per_point(stress_tangent_and_update)(F, E, Cv_old, dt, model.material, wmax)
         Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G)
         return ElementSystem(_nodal(model, P), Ke.reshape(n_el, 96, 96), None, None, None, Cv_new)
     P, r_p, D, P_p, r_pp, Cv_new = _per_point_mixed(mixed_tangent_and_update)(
-        F, E, Cv_old, dt, pressure_at_points(model, p), model.material)
+        F, E, Cv_old, dt, pressure_at_points(model, p), model.material, wmax)
     Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G).reshape(n_el, 96, 96)
     N = _basis(model)
     kup = jnp.einsum("eg,gk,egaj,egij->ekai", model.dV, N, model.G, P_p).reshape(n_el, N.shape[1], 96)
@@ -386,11 +410,11 @@ def pressure_correction(model: Model, g, kup, kpp, dq):
     return -jnp.linalg.solve(kpp, (g + jnp.einsum("eka,ea->ek", kup, dqe))[..., None])[..., 0]
 
 
-def element_tangents(model: Model, q, E, Cv_old, dt, p=None):
+def element_tangents(model: Model, q, E, Cv_old, dt, p=None, wmax=None):
     """Element force vectors and consistent tangents: fe (n_el, 32, 3), Ke (n_el, 96, 96),
     Cv_new. In the mixed form Ke is the tangent with the element pressures condensed
     (exact for finite K)."""
-    sys = element_system(model, q, E, Cv_old, dt, p)
+    sys = element_system(model, q, E, Cv_old, dt, p, wmax)
     if not model.structure.mixed:
         return sys.fe, sys.Ke, sys.Cv_new
     return sys.fe, condense(sys.Ke, sys.kup, newton_kpp(model, sys.kpp)), sys.Cv_new
@@ -453,16 +477,20 @@ def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:
 # ----------------------------------------------------------------------------- energies
 
 
-def free_energy_total(model: Model, q, E, Cv, p=None) -> jax.Array:
+def free_energy_total(model: Model, q, E, Cv, p=None, wmax=None) -> jax.Array:
     """Total free energy sum_g dV psi (J), electrostatic part included (mixed form: the
-    perturbed-Lagrangian energy at the element pressures p, None = 0)."""
+    perturbed-Lagrangian energy at the element pressures p, None = 0; with Mullins softening
+    the pseudo-energy eta W of the history wmax, None = 0)."""
     F = deformation_gradients(model, q)
+    mat = model.material
+    soft = jax.vmap(jax.vmap(lambda F_, w: mullins_factor(F_, w, mat)[0]))(F, _history(model, wmax))
     if model.structure.mixed:
         pg = pressure_at_points(model, p)
-        fn = jax.vmap(jax.vmap(mixed_free_energy, in_axes=(0, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))
-        psi = fn(F, E, Cv, pg, model.material)
+        fn = jax.vmap(jax.vmap(mixed_free_energy, in_axes=(0, 0, 0, 0, None, 0)), in_axes=(0, 0, 0, 0, None, 0))
+        psi = fn(F, E, Cv, pg, mat, soft)
     else:
-        psi = jax.vmap(jax.vmap(free_energy, in_axes=(0, 0, 0, None)), in_axes=(0, 0, 0, None))(F, E, Cv, model.material)
+        fn = jax.vmap(jax.vmap(free_energy, in_axes=(0, 0, 0, None, None, 0)), in_axes=(0, 0, 0, None, None, 0))
+        psi = fn(F, E, Cv, mat, True, soft)
     return jnp.sum(model.dV * psi)
 
 

@@ -30,8 +30,8 @@ DENSE_LIMIT = 3000
 
 
 @jax.jit
-def _tangents(model, q, E, Cv, dt, p):
-    return mdl.element_tangents(model, q, E, Cv, dt, p)[1]
+def _tangents(model, q, E, Cv, dt, p, wmax=None):
+    return mdl.element_tangents(model, q, E, Cv, dt, p, wmax)[1]
 
 
 def smallest_eigenvalue(model: mdl.Model, Ke) -> float:
@@ -51,15 +51,15 @@ def smallest_eigenvalue(model: mdl.Model, Ke) -> float:
     return float(eigsh(K.tocsc(), k=1, sigma=shift, which="LM", return_eigenvectors=False)[0])
 
 
-def _eigenvalue_at(model: mdl.Model, q, phi, Cv, p, dt) -> float:
-    return smallest_eigenvalue(model, _tangents(model, q, mdl.nominal_field(model, phi), Cv, dt, p))
+def _eigenvalue_at(model: mdl.Model, q, phi, Cv, p, dt, wmax=None) -> float:
+    return smallest_eigenvalue(model, _tangents(model, q, mdl.nominal_field(model, phi), Cv, dt, p, wmax))
 
 
 def static_eigenvalue(model: mdl.Model, loading: it.Loading, state: it.State, dt: float) -> float:
     """Smallest eigenvalue of the dof-scaled static tangent at ``state`` (voltages of
     ``loading`` at state.t; viscous units through a backward-Euler step of ``dt`` s)."""
     phi = loading.phi(state.t) if model.field_dirs.shape[0] else np.zeros(0)
-    return _eigenvalue_at(model, state.q, phi, state.Cv, state.p, dt)
+    return _eigenvalue_at(model, state.q, phi, state.Cv, state.p, dt, state.wmax)
 
 
 def reference_eigenvalue(model: mdl.Model, dt: float) -> float:

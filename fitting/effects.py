@@ -32,6 +32,9 @@ electrode_stiffness rel (-)                                     mu_inf -> mu_inf
 added_mass          rel (-)                                     mass matrix -> (1 + rel) M
 prestress           s0 (Pa)                                     dead traction s0 on the free faces
                                                                 (block: lateral, tube: axial end)
+mullins             d (-), m (Pa)                               Ogden-Roxburgh softening of the
+                                                                equilibrium branch (Material.mullins_*,
+                                                                history wmax per Gauss point)
 prestretch          lam (-)                                     kinematic pre-stretch (Material.pre) of
                                                                 the equilibrium branch, held by the
                                                                 frame's dead load on the free faces
@@ -45,7 +48,7 @@ candidate by ``dejax diagnose --refit``): ``refit:NAME`` for a material paramete
 ``dejax.parameters`` (mu_inf, Jm_inf, mu_1, eta_1, ...), one parameter ``factor`` (log scale,
 off 1, bounds [1/10, 10]) multiplying the baseline's value (``refit_names``).
 
-Not realisable without core changes (``UNAVAILABLE``): ``mullins``; see the message there.
+Every named effect is realisable (``UNAVAILABLE`` is empty).
 
 Normalized parameters (what the diagnosis's screening and fits move): each parameter maps
 its bounds onto z in [0, 1], linearly or in log scale (``Param.z_of``, ``Param.from_z``,
@@ -398,6 +401,12 @@ def _prestretch(p, v):
     return p.replace(model=eqx.tree_at(lambda md: (md.material, md.dead_load), p.model, (mat, load)))
 
 
+def _mullins(p, v):
+    mat = eqx.tree_at(lambda m: (m.mullins_d, m.mullins_m), p.model.material,
+                      (jnp.asarray(v["d"], dtype=float), jnp.asarray(v["m"], dtype=float)))
+    return p.replace(model=eqx.tree_at(lambda md: md.material, p.model, mat))
+
+
 def _output_unit(p) -> float:
     """SI value of one output unit of the sensor effects: 1, or 1 kPa for a stress (Pa)."""
     return 1e3 if p.info.get("output_is_stress") else 1.0
@@ -459,6 +468,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
            "and held by its frame: the equilibrium branch stretched by lam from its natural state "
            "(Material.pre), the frame's dead load on the free faces balancing it",
            needs=("prestress_load",)),
+    Effect("mullins", (Param("d", 0.0, (0.0, 0.9), 0.3, doc="largest relative softening below the largest "
+                             "energy seen"),
+                       Param("m", 1e4, (1e2, 1e6), 1e4, "log", "Pa", "energy scale of the softening")),
+           _mullins, "Mullins-type stress softening (Ogden-Roxburgh): the equilibrium branch softer on unloading "
+           "and reloading below the largest energy a point has seen (a history variable per Gauss point)"),
     Effect("sensor_offset", (Param("c", 0.0, (-1.0, 1.0), 0.0, unit="output"),), _offset,
            "constant sensor offset", "sensor"),
     Effect("sensor_drift", (Param("rate", 0.0, (-1.0, 1.0), 0.0, unit="output/s"),), _drift,
@@ -467,13 +481,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
            "sensor latency (pure delay of the measured output)", "sensor"),
 ]}
 
-UNAVAILABLE = {
-    "mullins": (
-        "Mullins softening needs a history variable (max_t I1bar, or a damage variable, per Gauss point) "
-        "carried in dejax.integrate.State next to Cv, updated after each converged step, and a free energy "
-        "psi(F, E, Cv, d) = (1 - d(I1max)) psi_inf + ... in dejax.material.free_energy (with the matching "
-        "stress/tangent and its derivative rule). The current State and free_energy have no such slot."),
-}
+UNAVAILABLE: dict[str, str] = {}
+"""Effects named but not realisable with the current core ({name: why}); none at present."""
 
 
 REFIT_PREFIX = "refit:"
@@ -558,7 +567,8 @@ def augment_material(material: Material, n_extra: int = 2, Jm: float = 5.0) -> M
                     K=list(np.asarray(material.K)) + [ratio * mu0] * n_extra,
                     Jm=list(np.asarray(material.Jm)) + [Jm] * n_extra,
                     eta=list(np.asarray(material.eta)) + [2.0 * mu0] * n_extra, eps_a=material.eps_a,
-                    eps_b=material.eps_b, pre=material.pre)
+                    eps_b=material.eps_b, pre=material.pre, mullins_d=material.mullins_d,
+                    mullins_m=material.mullins_m)
 
 
 def make_pieces(problem) -> Pieces:

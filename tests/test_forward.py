@@ -103,8 +103,8 @@ def test_uniaxial_experiment_gives_a_stretch_driven_quasi_static_forward():
     fwd, traces = fw.forward_from_experiment(exp)
     assert fwd.output == "stress" and isinstance(fwd.scheme, it.QuasiStatic)
     assert [t.response for t in traces] == ["stress"] * 3
-    assert set(fx.names(fwd.pieces0)) == {"creep", "hysteresis", "mu_drift", "electrode_stiffness", "sensor_offset",
-                                          "sensor_drift", "sensor_latency"}
+    assert set(fx.names(fwd.pieces0)) == {"creep", "hysteresis", "mu_drift", "electrode_stiffness", "mullins",
+                                          "sensor_offset", "sensor_drift", "sensor_latency"}
     tr = traces[1]  # 0.03 1/s: stretch 1 -> 2 -> 1 over 66.7 s
     y0 = fwd.predict({}, tr)
     assert 2e4 < y0.max() < 5e4 and abs(np.argmax(y0) - len(y0) // 2) <= 1  # peak stress at peak stretch

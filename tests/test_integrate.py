@@ -591,3 +591,27 @@ def test_initial_acceleration_by_conjugate_gradients_matches_the_dense_solve():
     for limit in (10**6, 0):
         a = np.asarray(it.initial_acceleration(m, jnp.asarray(rhs), dense_limit=limit))
         assert np.max(np.abs(a - ref)) <= 1e-9 * np.max(np.abs(ref)), limit
+
+
+def test_mullins_softening_over_a_load_unload_reload_history():
+    """Uniaxial stretch 1 -> 2 -> 1.5 -> 2.2 (quasi-static, hyperelastic Gent with Ogden-Roxburgh
+    softening d = 0.4, m = 5 kPa): the nominal stress is eta dW/dlam on the incompressible
+    uniaxial path, eta = 1 - d erf((Wmax - W)/m), Wmax the largest W so far, written here by hand
+    (to the compressibility, K/mu = 1e4); unloading is softer than loading at the same stretch."""
+    from scipy.special import erf
+
+    from dejax import scenarios
+
+    mu, Jm, d, m_ = 20e3, 100.0, 0.4, 5e3
+    mat = mat_.Material(mu, 1e4 * mu, Jm, 4e-11, 1000.0, mullins_d=d, mullins_m=m_)
+    knots_t, knots_l = [0.0, 1.0, 2.0, 3.0], [1.0, 2.0, 1.5, 2.2]
+    p = scenarios.uniaxial(loads.PiecewiseLinear(knots_t, knots_l), mat)
+    times = np.linspace(0.0, 3.0, 31)
+    sol = it.simulate(p.model, p.loading, times, p.output_fn, it.QuasiStatic()).check()
+    lam = np.interp(times, knots_t, knots_l)
+    W = -0.5 * mu * Jm * np.log(1 - (lam**2 + 2 / lam - 3) / Jm)
+    dW = mu * (lam - lam**-2) / (1 - (lam**2 + 2 / lam - 3) / Jm)
+    expect = (1 - d * erf((np.maximum.accumulate(W) - W) / m_)) * dW
+    stress = np.asarray(sol.outputs["stress"])
+    np.testing.assert_allclose(stress[1:], expect[1:], rtol=2e-4)
+    assert lam[16] == pytest.approx(lam[7]) and stress[16] < 0.8 * stress[7]  # lam = 1.7: unloading, loading

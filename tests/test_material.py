@@ -787,3 +787,46 @@ def test_bdf2_flow_step_falls_back_to_backward_euler():
     fb = m.bdf2_flow_step(Cv, jnp.eye(3)[None], 1e-3, 1e-3)  # a regular step: 4/3, -1/3, 2/3 h
     np.testing.assert_allclose(fb.base, 4 / 3 * Cv - 1 / 3 * jnp.eye(3)[None], rtol=1e-14)
     np.testing.assert_allclose(fb.dt, [2e-3 / 3], rtol=1e-14)
+
+
+# ----------------------------------------------------------------------------- Mullins softening
+
+
+def _mullins_material(d=0.4, m_=5e3):
+    return Material(20e3, 2e8, 100.0, 4e-11, 1000.0, mu=[10e3], K=[1e8], Jm=[50.0], eta=[1e3],
+                    mullins_d=d, mullins_m=m_)
+
+
+def test_mullins_factor_is_one_off_and_on_the_primary_path():
+    F = jnp.diag(jnp.array([1.3, 0.9, 1 / (1.3 * 0.9)]))
+    W = float(m.equilibrium_gent_energy(F, _mullins_material()))
+    eta, wmax = m.mullins_factor(F, 0.5 * W, _mullins_material())  # loading past the history
+    assert float(eta) == 1.0 and float(wmax) == W
+    eta, wmax = m.mullins_factor(F, W + 3e3, _mullins_material())  # below the largest energy seen
+    assert float(eta) == pytest.approx(1 - 0.4 * float(jax.scipy.special.erf(3e3 / 5e3)), rel=1e-14)
+    assert float(wmax) == W + 3e3
+    assert float(m.mullins_factor(F, W + 3e3, _mullins_material(d=0.0))[0]) == 1.0
+    with pytest.raises(ValueError, match="mullins_d"):
+        _mullins_material(d=1.0).validate()
+
+
+def test_mullins_stress_and_consistent_tangent():
+    """Below the largest energy seen the stress is eta dW/dF + the other terms at eta held,
+    and jacfwd of the stress (d eta/dF included) equals its central differences."""
+    mat = _mullins_material()
+    F = jnp.array([[1.25, 0.05, 0.0], [0.02, 0.92, 0.03], [0.0, 0.01, 0.88]])
+    E = jnp.array([0.0, 0.0, 2e6])
+    Cv_old = jnp.broadcast_to(jnp.eye(3), (1, 3, 3))
+    wmax = float(m.equilibrium_gent_energy(F, mat)) + 2e3
+    P, Cv_new = m.stress_and_update(F, E, Cv_old, 1e-3, mat, wmax)
+    eta = float(m.mullins_factor(F, wmax, mat)[0])
+    assert 0.6 < eta < 1.0
+    ref = jax.grad(m.free_energy)(F, E, Cv_new, mat, True, eta)
+    np.testing.assert_allclose(np.asarray(P), np.asarray(ref), rtol=1e-12, atol=1e-9)
+    D = m.stress_tangent_and_update(F, E, Cv_old, 1e-3, mat, wmax)[1]
+    h = 1e-6
+    for i, j in [(0, 0), (0, 1), (2, 2), (1, 0)]:
+        dF = jnp.zeros((3, 3)).at[i, j].set(h)
+        fd = (m.stress_and_update(F + dF, E, Cv_old, 1e-3, mat, wmax)[0]
+              - m.stress_and_update(F - dF, E, Cv_old, 1e-3, mat, wmax)[0]) / (2 * h)
+        np.testing.assert_allclose(np.asarray(D[:, :, i, j]), np.asarray(fd), rtol=1e-6, atol=1e-6 * float(mat.mu_inf))

@@ -1,7 +1,7 @@
 """dejax.verification.block_effects: the independent truth of the diagnosis validation.
 
 Each realised effect is checked against a reference computed another way: the static
-equilibria (electrostriction, pre-stress, electrode stiffness) against the stationary point of
+equilibria (electrostriction, pre-stress, pre-stretch, electrode stiffness) against the stationary point of
 the block's total energy found numerically (scipy, finite differences of the energy, not the
 hand-derived residual); the closed-form RC filter against scipy's ODE integration; the output
 transforms and the moduli drift against their definitions."""
@@ -17,16 +17,21 @@ from dejax.verification import models as R
 BLK = B.BLOCK
 
 
-def _static_stretch(phi, mu_inf=BLK["mu_inf"], eps_b=0.0, s=0.0):
+def _static_stretch(phi, mu_inf=BLK["mu_inf"], eps_b=0.0, s=0.0, lam_p=1.0):
     """Stationary point in lam of the hyperelastic block's potential per reference volume:
-    Gent energy - eps/2 (1 + eps_b (lam^-2 - 1)) E^2 lam^4 - 2 s (lam - 1), E = phi/L
-    (derivative by central differences of the energy)."""
+    Gent energy (of lam lam_p, the stretch from the natural state) - eps/2 (1 + eps_b (lam^-2 - 1))
+    E^2 lam^4 - 2 s (lam - 1), E = phi/L, s plus the frame's stress holding lam = 1 without
+    voltage when lam_p != 1 (derivatives by central differences of the energy)."""
     E = phi / BLK["L"]
 
+    def gent(x):
+        return -0.5 * mu_inf * BLK["Jm_inf"] * np.log(1 - (2 * x**2 + x**-4 - 3) / BLK["Jm_inf"])
+
+    frame = (gent(lam_p * (1 + 1e-7)) - gent(lam_p * (1 - 1e-7))) / 4e-7 if lam_p != 1.0 else 0.0
+
     def pot(lam):
-        I1 = 2 * lam**2 + lam**-4
-        gent = -0.5 * mu_inf * BLK["Jm_inf"] * np.log(1 - (I1 - 3) / BLK["Jm_inf"])
-        return gent - 0.5 * BLK["eps"] * (1 + eps_b * (lam**-2 - 1)) * E**2 * lam**4 - 2 * s * (lam - 1)
+        elec = 0.5 * BLK["eps"] * (1 + eps_b * (lam**-2 - 1)) * E**2 * lam**4
+        return gent(lam * lam_p) - elec - 2 * (s + frame) * (lam - 1)
 
     d = lambda lam: (pot(lam + 1e-7) - pot(lam - 1e-7)) / 2e-7  # noqa: E731
     return optimize.brentq(d, 1.0 - 1e-3, 1.3, xtol=1e-14)
@@ -36,6 +41,7 @@ def _static_stretch(phi, mu_inf=BLK["mu_inf"], eps_b=0.0, s=0.0):
     ({"electrostriction": {"eps_b": -0.3}}, dict(eps_b=-0.3)),
     ({"prestress": {"s0": 20e3}}, dict(s=20e3)),
     ({"electrode_stiffness": {"rel": 0.4}}, dict(mu_inf=BLK["mu_inf"] * 1.4)),
+    ({"prestretch": {"lam": 1.3}}, dict(lam_p=1.3)),
 ])
 def test_static_effects_against_the_energy_stationary_point(effects, kw):
     # the block without its viscous unit, at the peak of a slow sine: hyperelastic equilibrium

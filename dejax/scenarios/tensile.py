@@ -27,8 +27,8 @@ class _UniaxialOutputs(eqx.Module):
     def __call__(self, model, loading, state):
         phi = loading.phi(state.t) if loading.voltages else jnp.zeros(model.field_dirs.shape[0])
         E = mdl.nominal_field(model, phi)
-        R = (mdl.mass_apply(model, state.qdd + model.damping * state.v) + mdl.internal_force_at(model, state.q, E, state.Cv, state.p)
-             - mdl.external_force(model))
+        R = (mdl.mass_apply(model, state.qdd + model.damping * state.v)
+             + mdl.internal_force_at(model, state.q, E, state.Cv, state.p, state.wmax) - mdl.external_force(model))
         idx = 12 * jnp.asarray(self.face)
         top = 12 * jnp.asarray(self.top) + 2
         return {

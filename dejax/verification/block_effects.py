@@ -17,6 +17,9 @@ mu_drift             every modulus x s(t) = 1 + rate t (eta alike): the reduced 
 electrode_stiffness  mu_inf x (1 + rel)
 prestress            an equal-biaxial dead nominal stress s0 on the lateral faces, applied at
                      t = 0 to the film at rest (the viscous units not yet relaxed)
+prestretch           the equilibrium branch's natural state lam^-1 in plane (kinematic pre-stretch,
+                     ``homogeneous_block_response(prestretch=...)``), held by the frame's dead
+                     nominal stress mu_inf lam (lam - lam^-5) / H_inf(lam) on the lateral faces
 electrostriction     eps_b: permittivity eps (1 + eps_b (lam_z - 1)) in the reduced
                      equilibrium (``homogeneous_block_response(eps_b=...)``)
 sensor_offset        y + c
@@ -40,7 +43,7 @@ __all__ = ["BLOCK", "REALISED", "block_response"]
 # the paper's Sec. 4 block (scenarios.block_material, L = 1 mm)
 BLOCK = dict(L=1e-3, mu_inf=67e3, Jm_inf=15.0, eps=4e-11, mu=[67e3], Jm=[5.0], eta=[3000.0])
 REALISED = ("creep", "hysteresis", "voltage_lag", "leakage", "mu_drift", "electrode_stiffness", "prestress",
-            "electrostriction", "sensor_offset", "sensor_drift", "sensor_latency")
+            "prestretch", "electrostriction", "sensor_offset", "sensor_drift", "sensor_latency")
 
 
 def _rc_sine(t, c, omega, tau):
@@ -88,9 +91,12 @@ def block_response(t, phi_max: float, freq: float, effects: dict | None = None, 
     delay = _value(effects, "sensor_latency", "delay")
     ts = np.maximum(t - delay, 0.0)
     order = np.argsort(ts, kind="stable")
+    lam_p = _value(effects, "prestretch", "lam", 1.0)
+    frame = mu_inf * lam_p * (lam_p - lam_p**-5) / (1.0 - (2.0 * lam_p**2 + lam_p**-4 - 3.0) / block["Jm_inf"])
     lam_sorted = models.homogeneous_block_response(
         ts[order], phi_fn, block["L"], mu_inf, block["Jm_inf"], block["eps"], mu, Jm, eta,
-        eps_b=_value(effects, "electrostriction", "eps_b"), prestress=_value(effects, "prestress", "s0"))
+        eps_b=_value(effects, "electrostriction", "eps_b"), prestress=_value(effects, "prestress", "s0") + frame,
+        prestretch=lam_p)
     lam = np.empty_like(lam_sorted)
     lam[order] = lam_sorted
     return lam + _value(effects, "sensor_offset", "c") + _value(effects, "sensor_drift", "rate") * (t - t[0])

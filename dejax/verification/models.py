@@ -130,7 +130,7 @@ def gent_equibiaxial_voltage(lam, L, mu_inf, Jm_inf, eps):
     nominal field E = phi/L through the thickness L (m)::
 
         (lam^-2 - lam^-8)/H_inf = (eps/mu_inf) (phi/L)^2
-        H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
+        H_inf = 1 - (2 x^2 + x^-4 - 3)/Jm_inf
 
     i.e. phi = L sqrt(mu_inf/eps (lam^-2 - lam^-8)/H_inf), for 1 <= lam < the Gent
     limit. mu_inf in Pa, eps in F/m. Vectorised over ``lam``; raises ValueError for
@@ -401,9 +401,14 @@ def _block_resid(lam, xi, t, args):
     """[sum of elastic terms - eps (phi/L)^2] / mu_inf of the equal-biaxial block (NaN if inadmissible)."""
     p, phi_fn = args
     phi = phi_fn(t)
-    Hinf = 1.0 - (2.0 * lam**2 + lam**-4 - 3.0) / p["Jm_inf"]
+    # the equilibrium branch at the stretch x = lam lam_pre from the film's natural state (a
+    # kinematic pre-stretch): d/dlam Gent(x) / (2 mu_inf lam^3) = (lam_pre^2 lam^-2 - lam_pre^-4 lam^-8) / H_inf
+    # (the same arithmetic as without it when lam_pre = 1)
+    lp = p["lam_pre"]
+    x = lam * lp
+    Hinf = 1.0 - (2.0 * x**2 + x**-4 - 3.0) / p["Jm_inf"]
     Hs = 1.0 - (2.0 * lam**2 * xi**-2 + lam**-4 * xi**4 - 3.0) / p["Jm"]
-    r = (lam**-2 - lam**-8) / Hinf
+    r = (lp**2 * lam**-2 - lp**-4 * lam**-8) / Hinf
     r = r + jnp.sum(p["mu"] / p["mu_inf"] * (lam**-2 * xi**-2 - lam**-8 * xi**4) / Hs)
     # electrostatic term, with the first-order electrostriction eps (1 + b (lam_z - 1)), lam_z = lam^-2:
     # d/dlam [-eps/2 (1 + b (lam^-2 - 1)) E^2 lam^4] / (2 lam^3) = -eps E^2 (1 - b + b lam^-2 / 2)
@@ -445,7 +450,7 @@ def _block_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
 
 def homogeneous_block_response(
     t, phi_fn, L, mu_inf, Jm_inf, eps, mu, Jm, eta, rtol=1e-10, atol=1e-12, *, t0=0.0, solver=None,
-    max_steps=1_000_000, return_xi=False, eps_b=0.0, prestress=0.0,
+    max_steps=1_000_000, return_xi=False, eps_b=0.0, prestress=0.0, prestretch=1.0,
 ):
     r"""Equal-biaxial stretch lam(t) of the incompressible viscoelastic Gent block (N >= 0 units).
 
@@ -453,11 +458,11 @@ def homogeneous_block_response(
     nominal field E = phi(t)/L along z; inertia neglected. Derived from psi (module
     docstring)::
 
-        equilibrium:  mu_inf (lam^-2 - lam^-8)/H_inf
+        equilibrium:  mu_inf (lam_p^2 lam^-2 - lam_p^-4 lam^-8) / H_inf,  x = lam lam_p
                       + sum_s mu_s (lam^-2 xi_s^-2 - lam^-8 xi_s^4)/H_s
                       = eps (phi/L)^2 (1 - b + b lam^-2/2) + s lam^-3
         evolution:    dxi_s/dt = mu_s/(3 eta_s H_s) (lam^2 xi_s^-1 - lam^-4 xi_s^5)
-        H_inf = 1 - (2 lam^2 + lam^-4 - 3)/Jm_inf
+        H_inf = 1 - (2 x^2 + x^-4 - 3)/Jm_inf
         H_s   = 1 - (2 lam^2 xi_s^-2 + lam^-4 xi_s^4 - 3)/Jm_s
 
     with xi_s(t0) = 1 (Cv = I at rest). For one unit this is exactly the paper notes' system.
@@ -490,6 +495,8 @@ def homogeneous_block_response(
       eps_b: first-order electrostriction b (-): permittivity eps (1 + b (lam_z - 1)) with
         lam_z = lam^-2 the stretch along the field (default 0, the paper's model).
       prestress: nominal in-plane dead-load stress s (Pa) on the four lateral faces (default 0).
+      prestretch: equal-biaxial kinematic pre-stretch lam_p (-) of the equilibrium branch
+        (default 1): its natural state is lam_p^-1 in plane, the viscous units' the reference.
     Returns:
       lam(t) as a numpy array (and xi(t) if requested).
     Raises:
@@ -501,7 +508,7 @@ def homogeneous_block_response(
     ts = _times(t, t0)
     mup, Jmp, etap = _padded(mu, Jm, eta)
     p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mup, Jm=Jmp, eta=etap,
-                                                   eps_b=eps_b, s_pre=prestress).items()}
+                                                   eps_b=eps_b, s_pre=prestress, lam_pre=prestretch).items()}
     args = (p, phi_fn)
     integrate = bool(ts[-1] > t0)  # N = 0 runs through the same (padded, inert) path: one compilation
     solver = solver or diffrax.Tsit5()
