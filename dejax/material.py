@@ -182,11 +182,18 @@ def gent_margin(I1bar, Jm):
     return 1.0 - (I1bar - 3.0) / Jm
 
 
+def _natural_invariants(F, mat: Material):
+    """(J, I1bar) of F diag(mat.pre), the stretch of the equilibrium branch from the film's
+    natural state (``Material.pre``)."""
+    Fn = F * mat.pre[None, :]
+    Jn = det3(Fn)
+    return Jn, Jn ** (-2.0 / 3.0) * jnp.trace(gram3(Fn))
+
+
 def equilibrium_gent_energy(F, mat: Material):
     """W: the equilibrium branch's isochoric Gent energy at F diag(mat.pre) (J/m^3), the
     energy Mullins softening measures (``mullins_factor``)."""
-    Fn = F * mat.pre[None, :]
-    return gent_energy(det3(Fn) ** (-2.0 / 3.0) * jnp.trace(gram3(Fn)), mat.mu_inf, mat.Jm_inf)
+    return gent_energy(_natural_invariants(F, mat)[1], mat.mu_inf, mat.Jm_inf)
 
 
 def mullins_factor(F, wmax_old, mat: Material):
@@ -210,9 +217,7 @@ def equilibrium_energy(F, E, mat: Material, bulk: bool = True, softening=1.0):
     C = gram3(F)
     J = det3(F)
     I1bar = J ** (-2.0 / 3.0) * jnp.trace(C)
-    Fn = F * mat.pre[None, :]  # F diag(pre)
-    Jn = det3(Fn)
-    I1bar_n = Jn ** (-2.0 / 3.0) * jnp.trace(gram3(Fn))
+    Jn, I1bar_n = _natural_invariants(F, mat)
     EE = jnp.dot(E, E)
     safe = jnp.where(EE > 0.0, EE, 1.0)
     lam_E = jnp.sqrt(jnp.where(EE > 0.0, jnp.dot(E, C @ E) / safe, 1.0))  # 1 without field
@@ -270,8 +275,7 @@ def mixed_free_energy(F, E, Cv, p, mat: Material, softening=1.0):
 
 def min_gent_margin(F, Cv, mat: Material):
     """Smallest Gent margin H over the equilibrium branch (at F diag(mat.pre)) and every viscous unit."""
-    Fn = F * mat.pre[None, :]
-    h = gent_margin(det3(Fn) ** (-2.0 / 3.0) * jnp.trace(gram3(Fn)), mat.Jm_inf)
+    h = gent_margin(_natural_invariants(F, mat)[1], mat.Jm_inf)
     if mat.n_units:
         def unit(Cv_s, Jm):
             Je, I1e = _viscous_invariants(F, Cv_s)

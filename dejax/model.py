@@ -264,12 +264,21 @@ def _history(model: Model, wmax):
     return initial_history(model) if wmax is None else wmax
 
 
+def _mullins(model: Model, F, wmax):
+    """(eta, wmax_new), each (n_el, n_gp): ``material.mullins_factor`` at every point."""
+    fn = jax.vmap(jax.vmap(mullins_factor, in_axes=(0, 0, None)), in_axes=(0, 0, None))
+    return fn(F, _history(model, wmax), model.material)
+
+
+def _softening(model: Model, F, wmax):
+    """(n_el, n_gp) Mullins factor eta at the deformation gradients F against the history wmax."""
+    return _mullins(model, F, wmax)[0]
+
+
 def mullins_history(model: Model, q, wmax_old=None) -> jax.Array:
     """(n_el, n_gp) wmax_new = max(wmax_old, W(F(q))), W the equilibrium Gent energy
     (``material.mullins_factor``): the history after a converged step."""
-    F = deformation_gradients(model, q)
-    fn = jax.vmap(jax.vmap(mullins_factor, in_axes=(0, 0, None)), in_axes=(0, 0, None))
-    return fn(F, _history(model, wmax_old), model.material)[1]
+    return _mullins(model, deformation_gradients(model, q), wmax_old)[1]
 
 
 def initial_pressure(model: Model) -> jax.Array:
@@ -330,7 +339,7 @@ def internal_force_at(model: Model, q, E, Cv, p=None, wmax=None):
     Mullins history (n_el, n_gp) the state's softening is measured against (None = 0)."""
     F = deformation_gradients(model, q)
     mat = model.material
-    soft = jax.vmap(jax.vmap(lambda F_, w: mullins_factor(F_, w, mat)[0]))(F, _history(model, wmax))
+    soft = _softening(model, F, wmax)
     if model.structure.mixed:
         grad = jax.grad(mixed_free_energy, argnums=0)
         pg = pressure_at_points(model, p)
@@ -483,7 +492,7 @@ def free_energy_total(model: Model, q, E, Cv, p=None, wmax=None) -> jax.Array:
     the pseudo-energy eta W of the history wmax, None = 0)."""
     F = deformation_gradients(model, q)
     mat = model.material
-    soft = jax.vmap(jax.vmap(lambda F_, w: mullins_factor(F_, w, mat)[0]))(F, _history(model, wmax))
+    soft = _softening(model, F, wmax)
     if model.structure.mixed:
         pg = pressure_at_points(model, p)
         fn = jax.vmap(jax.vmap(mixed_free_energy, in_axes=(0, 0, 0, 0, None, 0)), in_axes=(0, 0, 0, 0, None, 0))
