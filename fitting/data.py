@@ -187,7 +187,8 @@ from typing import Any, Mapping
 from dejax import parameters as mp
 
 from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, FIT_RESULT_KEYS, GEOMETRY_ALTERNATIVE, GEOMETRY_KEYS,
-                     GEOMETRY_OPTIONAL, GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_SCALARS, OPTIMIZERS, ROLES, SCENARIOS,
+                     GEOMETRY_OPTIONAL, GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_OPTIONAL, MATERIAL_SCALARS, OPTIMIZERS,
+                     ROLES, SCENARIOS,
                      SECTIONS, SOLVER_KEYS, STRICTLY_POSITIVE, TRACE_KEYS, TRACE_REQUIRED, UNIT_KEYS, DataError,
                      check_loading, fmt_list, is_number, suggest)
 from .traces import Trace, load_trace_csv
@@ -278,7 +279,9 @@ class Experiment:
         for k in overrides:
             if k not in allowed:
                 raise KeyError(f"unknown material parameter '{k}'{suggest(k, allowed)}; known: {fmt_list(allowed)}")
-        return mp.material_kwargs({**self.parameters(), **overrides}, self.n_units)
+        kw = mp.material_kwargs({**self.parameters(), **overrides}, self.n_units)
+        kw.update({k: self.material[k] for k in MATERIAL_OPTIONAL if k in self.material})
+        return kw
 
 
 def _parameters(material, geometry, effects) -> dict[str, float]:
@@ -481,6 +484,11 @@ def _load_material(tf: _Toml, doc) -> dict:
         if k not in m:
             raise tf.error(f"missing required key '{k}' (required: {fmt_list(MATERIAL_SCALARS)})", "material")
         out[k] = tf.number(m, k, "material", lower=0.0, strict=STRICTLY_POSITIVE[k])
+    for k, (lo, hi, _) in MATERIAL_OPTIONAL.items():
+        if k in m:
+            out[k] = tf.number(m, k, "material", lower=lo, strict=k != "mullins_d")
+            if hi is not None and out[k] >= hi:
+                raise tf.error(f"'{k}' = {out[k]} must be < {hi}", f"material.{k}")
     units = m.get("units", [])
     if not isinstance(units, list):
         raise tf.error("'units' must be an array of tables ([[material.units]])", "material.units")

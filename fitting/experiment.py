@@ -29,6 +29,7 @@ import numpy as np
 
 from dejax import integrate as it
 from dejax import loads, parameters, scenarios
+from dejax.material import Material
 
 from .fit import fit
 from .traces import Trace
@@ -243,6 +244,9 @@ def from_experiment(exp, n_steps: int | None = None, max_points: int | None = No
     """(forward, params0, free, bounds, targets, holdout, options) for a fitting.data.Experiment."""
     params0 = {k: v for k, v in exp.parameters().items() if parameters.PATTERN.match(k)}
     params0["c_d"] = float(exp.solver.get("damping", 0.0))
+    if float(exp.material.get("mullins_d", 0.0)) > 0:
+        raise ValueError("dejax fit does not model Mullins softening (its forwards build the paper's material): "
+                         "remove [material] mullins_d, or diagnose with it (dejax diagnose)")
     free = list(exp.fit.free)
     for k in free:
         if not parameters.PATTERN.match(k):
@@ -411,7 +415,7 @@ def _trace_geometry(exp, tr) -> dict:
 def _scenario_problem(exp, tr, g, volt, common):
     """The scenario's Problem with the experiment's material and geometry ``g`` under the
     voltage history ``volt`` (and, for uniaxial, the trace's stretch)."""
-    material = parameters.from_flat(exp.parameters(), exp.n_units)
+    material = Material(**exp.material_kwargs())  # with the optional keys (Mullins softening)
     if exp.scenario == "block":
         return scenarios.block(L=float(g.get("L", g.get("lx", 1e-3))), shape=tuple(g.get("mesh", (1, 1, 1))),
                                material=material, voltage=volt, **common)

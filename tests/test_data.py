@@ -105,6 +105,18 @@ def test_material_kwargs_build_a_dejax_material(tmp_path):
     assert mat.n_units == 1 and float(mat.mu[0]) == 2e4 and float(mat.eta[0]) == 400.0
 
 
+def test_optional_mullins_keys_reach_the_material(tmp_path):
+    from dejax.material import Material
+
+    toml = TOML.replace("mu_inf = 81e3", "mu_inf = 81e3\nmullins_d = 0.3\nmullins_m = 2e3")
+    exp = load_experiment(write(tmp_path, toml))
+    mat = Material(**exp.material_kwargs())
+    assert float(mat.mullins_d) == 0.3 and float(mat.mullins_m) == 2e3
+    assert float(Material(**load_experiment(write(tmp_path)).material_kwargs()).mullins_d) == 0.0  # off
+    with pytest.raises(DataError, match="mullins_d.*must be < 1"):
+        load_experiment(write(tmp_path, TOML.replace("mu_inf = 81e3", "mu_inf = 81e3\nmullins_d = 1.0")))
+
+
 def test_loading_table_and_voltage(tmp_path):
     csv = "time_s,displacement_m\n0,0\n0.01,1e-5\n0.02,2e-5\n"
     toml = TOML.replace('columns = { time = "t_ms", displacement = "disp_mm", voltage = "U_kV" }\n'

@@ -79,6 +79,12 @@ def test_what_dejax_fit_cannot_do():
     bad = dataclasses.replace(exp, fit=dataclasses.replace(exp.fit, free=("geometry.L",)))
     with pytest.raises(ValueError, match="free parameter 'geometry.L' is not supported"):
         E.from_experiment(bad)
+    mullins = dataclasses.replace(exp, material={**exp.material, "mullins_d": 0.3})
+    with pytest.raises(ValueError, match="does not model Mullins softening"):
+        E.from_experiment(mullins)
+    # dejax run of the experiment builds its material with the softening
+    setup = E.experiment_run(mullins)
+    assert float(setup.problem.model.material.mullins_d) == 0.3
 
 
 # ----------------------------------------------------------------------------- dejax run of an experiment
