@@ -187,8 +187,8 @@ from typing import Any, Mapping
 from dejax import parameters as mp
 
 from .schema import (DYNAMIC_SCENARIOS, EXPERIMENT_KEYS, FIT_KEYS, FIT_RESULT_KEYS, GEOMETRY_ALTERNATIVE, GEOMETRY_KEYS,
-                     GEOMETRY_OPTIONAL, GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_OPTIONAL, MATERIAL_SCALARS, OPTIMIZERS,
-                     ROLES, SCENARIOS,
+                     GEOMETRY_OPTIONAL, GEOMETRY_REQUIRED, MATERIAL_KEYS, MATERIAL_OPTIONAL, MATERIAL_SCALARS,
+                     OPTIMIZERS, ROLES, SCENARIOS,
                      SECTIONS, SOLVER_KEYS, STRICTLY_POSITIVE, TRACE_KEYS, TRACE_REQUIRED, UNIT_KEYS, DataError,
                      check_loading, fmt_list, is_number, suggest)
 from .traces import Trace, load_trace_csv
