@@ -484,9 +484,9 @@ def _load_material(tf: _Toml, doc) -> dict:
         if k not in m:
             raise tf.error(f"missing required key '{k}' (required: {fmt_list(MATERIAL_SCALARS)})", "material")
         out[k] = tf.number(m, k, "material", lower=0.0, strict=STRICTLY_POSITIVE[k])
-    for k, (lo, hi, _) in MATERIAL_OPTIONAL.items():
+    for k, (lo, strict, hi) in MATERIAL_OPTIONAL.items():
         if k in m:
-            out[k] = tf.number(m, k, "material", lower=lo, strict=k != "mullins_d")
+            out[k] = tf.number(m, k, "material", lower=lo, strict=strict)
             if hi is not None and out[k] >= hi:
                 raise tf.error(f"'{k}' = {out[k]} must be < {hi}", f"material.{k}")
     units = m.get("units", [])

@@ -47,9 +47,9 @@ TRACE_REQUIRED = {"block": ("time",), "rolled": ("time",), "torsional": ("time",
 """scenario -> the channels every trace must map."""
 MATERIAL_KEYS = ("mu_inf", "K_inf", "Jm_inf", "eps", "rho", "units", "mullins_d", "mullins_m")
 MATERIAL_SCALARS = mp.SCALARS  # the TOML keys are the parameter names (dejax.parameters)
-MATERIAL_OPTIONAL = {"mullins_d": (0.0, 1.0, 0.0), "mullins_m": (0.0, None, 1e4)}
-"""Optional [material] keys beyond the paper's model: (lower bound, exclusive; upper bound, exclusive
-or None; default). Mullins softening (``dejax.material.Material``), off by default."""
+MATERIAL_OPTIONAL = {"mullins_d": (0.0, False, 1.0), "mullins_m": (0.0, True, None)}
+"""Optional [material] keys beyond the paper's model: (lower bound, whether it is strict, exclusive
+upper bound or None). Mullins softening; absent keys take ``dejax.material.Material``'s defaults (off)."""
 UNIT_KEYS = mp.UNIT_KEYS
 # lower bound and whether it is strict, for the material parameters
 STRICTLY_POSITIVE = {"mu_inf": True, "K_inf": False, "Jm_inf": True, "eps": False, "rho": True,
