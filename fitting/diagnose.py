@@ -59,8 +59,8 @@ import numpy as np
 
 from . import effects as fx
 from .effect_fit import fit_effects
-from .forward import Forward, block_forward, forward_from_experiment, synthetic_traces
-from .gap import breakdown, estimate_noise, gap, rms
+from .forward import Forward, block_forward, fd_jacobian, forward_from_experiment, residuals_at, synthetic_traces
+from .gap import breakdown, estimate_noise, gap, rms, shrinkage_spread
 from .screening import criteria, screen
 from .traces import Trace
 
@@ -302,9 +302,38 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
         for f, d0 in before["features"].items():
             g0, g1 = d0["rms_gap"], after["features"][f]["rms_gap"]
             shrink["features"][f] = {"gap_before": g0, "gap_after": g1, "shrinkage": 1.0 - g1 / g0 if g0 > 0 else None}
+        names = [*best.name.split("+"), *refit_fx]
+        jac, cov_sqrt = fitted_covariance(fwd, names, best.values, traces, n, best.sse_fit)
+        spread = shrinkage_spread(traces, [base_pred[tr.name] for tr in traces], [bp[tr.name] for tr in traces],
+                                  sigma, jac, cov_sqrt)
+        for role in ("fit", "holdout"):
+            if role in shrink:
+                shrink[role]["spread"] = spread[role]
+        for f in shrink["features"]:
+            shrink["features"][f]["spread"] = spread["features"].get(f)
     alts = equivalent(best, results, n_hold=int(sum(len(tr) for tr in hold)) if hold else n) if best else []
     return Diagnosis(verdict, best.name if best else None, sigma, chi, chi_lim, baseline,
                      [c.as_dict() for c in results], before, after, shrink, n, _time.time() - t0, preds, alts)
+
+
+def fitted_covariance(fwd: Forward, names: Sequence[str], values: Mapping, traces: Sequence[Trace], n_fit: int,
+                      sse: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """The fitted effects ``names`` at ``values``: per trace the (n_i, k) Jacobian of the
+    prediction with respect to the normalized parameters z (forward differences, every trace,
+    k + 1 simulations of each), and S (k, k') with S S^T = s^2 (J^T J)^+ over the fit traces
+    (Gauss-Newton, s^2 = sse / (n_fit - k); directions the fit traces do not determine are
+    left out)."""
+    plist = fx.param_list(names)
+    z = np.array([p.z_of(values.get(nm, {}).get(p.name, p.off)) for nm, p in plist])
+    resid_many = residuals_at(fwd, names, traces)
+    J = fd_jacobian(resid_many, z, resid_many([z])[0])  # d residual / dz = d prediction / dz
+    bounds = np.cumsum([0] + [len(tr) for tr in traces])
+    per_trace = [J[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+    J_fit = np.concatenate([Jt for Jt, tr in zip(per_trace, traces) if tr.role == "fit"])
+    s2 = sse / max(n_fit - z.size, 1)
+    _, S, Vt = np.linalg.svd(J_fit, full_matrices=False)
+    keep = S > S[0] * 1e-12 if S.size and S[0] > 0 else np.zeros(S.shape, bool)
+    return per_trace, Vt[keep].T * (math.sqrt(s2) / S[keep])
 
 
 def at_bounds(values: Mapping) -> list[str]:

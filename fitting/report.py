@@ -116,18 +116,33 @@ def write_report(diag: Diagnosis, traces: Sequence[Trace], out, title: str = "Si
     L += ["", "## Which effect explains it", "", "```", diag.table(), "```", "",
           "Ranking: effects with Delta BIC below -10 first, then by holdout RMS. Uncertainties: Gauss-Newton.", ""]
     if diag.shrinkage:
-        L += ["## How far it shrinks", "", "| set | RMS before | RMS after | gap before | gap after | shrinkage |",
-              "|---|---|---|---|---|---|"]
+        L += ["## How far it shrinks", "",
+              "Beside each gap and shrinkage: +- its sd over replicate measurements (new noise of the "
+              "estimated sigma) and the fitted effect's Gauss-Newton parameter covariance "
+              "(`gap.shrinkage_spread`).", "",
+              "| set | RMS before | RMS after | gap before | gap after | shrinkage |", "|---|---|---|---|---|---|"]
         for role in ("fit", "holdout"):
             if role in diag.shrinkage:
                 s = diag.shrinkage[role]
-                sh = f"{100 * s['gap_shrinkage']:.0f} %" if s["gap_shrinkage"] is not None else "-"
-                L.append(f"| {role} | {s['rms_before']:.3e} | {s['rms_after']:.3e} | {s['gap_before']:.3e} | "
-                         f"{s['gap_after']:.3e} | {sh} |")
+                sp = s.get("spread") or {}
+                L.append(f"| {role} | {s['rms_before']:.3e} | {s['rms_after']:.3e} | "
+                         f"{_pm(s['gap_before'], sp.get('gap_before'))} | {_pm(s['gap_after'], sp.get('gap_after'))} | "
+                         f"{_pm(s['gap_shrinkage'], sp.get('shrinkage'), percent=True)} |")
         L += ["", "| feature | gap before | gap after | shrinkage |", "|---|---|---|---|"]
         for f, s in diag.shrinkage["features"].items():
-            sh = f"{100 * s['shrinkage']:.0f} %" if s["shrinkage"] is not None else "-"
-            L.append(f"| {f} | {s['gap_before']:.3e} | {s['gap_after']:.3e} | {sh} |")
+            sp = s.get("spread") or {}
+            L.append(f"| {f} | {_pm(s['gap_before'], sp.get('gap_before'))} | {_pm(s['gap_after'], sp.get('gap_after'))} | "
+                     f"{_pm(s['shrinkage'], sp.get('shrinkage'), percent=True)} |")
     L += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figs]
     (out / "report.md").write_text("\n".join(L) + "\n")
     return {"markdown": str(out / "report.md"), "json": str(out / "report.json"), "figures": [str(out / f) for f in figs]}
+
+
+def _pm(value, spread, percent: bool = False) -> str:
+    """``value`` +- the sd of ``spread`` (``gap.shrinkage_spread``), as a percentage if ``percent``."""
+    if value is None:
+        return "-"
+    sd = (spread or {}).get("sd")
+    if percent:
+        return f"{100 * value:.0f} %" + (f" +- {100 * sd:.0f}" if sd is not None else "")
+    return f"{value:.3e}" + (f" +- {sd:.1e}" if sd is not None else "")

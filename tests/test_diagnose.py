@@ -53,6 +53,13 @@ def test_offset_shows_in_the_breakdown_before_and_not_after():
         assert e["mean_residual"] == pytest.approx(-2e-3, abs=1e-4)
     assert abs(d.breakdown_after["features"]["mean"]["mean_gap"]) < 1e-4
     assert d.shrinkage["features"]["mean"]["shrinkage"] > 0.9
+    # its uncertainty: the gap before spreads by the noise alone (about sigma / sqrt(n) for a gap
+    # of 20 sigma), the shrinkage is well determined
+    sp = d.shrinkage["holdout"]["spread"]
+    n_hold = 120
+    assert 0.7 < sp["gap_before"]["sd"] / (SIGMA / n_hold ** 0.5) < 1.5
+    assert sp["shrinkage"]["sd"] < 0.1 and sp["shrinkage"]["lo"] > 0.7
+    assert d.shrinkage["features"]["mean"]["spread"]["shrinkage"]["sd"] < 0.1
 
 
 def test_refit_keeps_a_misfitted_baseline_from_masquerading_as_an_effect():
@@ -91,7 +98,11 @@ def test_report_and_cli_registration(tmp_path):
     files = report.write_report(d, tr, tmp_path)
     js = json.loads((tmp_path / "report.json").read_text())
     assert js["best"] == "sensor_offset" and js["ranking"][0]["name"] == "sensor_offset"
-    assert "gap explained by 'sensor_offset'" in (tmp_path / "report.md").read_text()
+    md = (tmp_path / "report.md").read_text()
+    assert "gap explained by 'sensor_offset'" in md
+    holdout_row = next(line for line in md.splitlines() if line.startswith("| holdout |"))
+    assert holdout_row.count("+-") == 3  # gap before, gap after, shrinkage, each with its sd
+    assert js["shrinkage"]["holdout"]["spread"]["shrinkage"]["sd"] > 0
     for f in files["figures"]:
         assert os.path.getsize(f) > 1000
     ap = argparse.ArgumentParser()
