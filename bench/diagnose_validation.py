@@ -3,7 +3,8 @@
 The truth is independent of the forward code the diagnosis fits: the reduced homogeneous
 incompressible block integrated by diffrax (``dejax.verification.block_effects``), each
 effect realised there from its physics (closed-form RC filter, extra Gent unit, moduli
-drift, dead load, first-order electrostriction, output transforms); the diagnosis fits the
+drift, dead load, first-order electrostriction, Mullins softening with the largest stretch
+as a state, output transforms); the diagnosis fits the
 one-element finite-element block (compressible, inertia, generalized-alpha) with its own
 effect library. ``--truth forward`` uses the forward code instead (the earlier, weaker check).
 
@@ -21,7 +22,7 @@ eta_1 x (1 + M) against the truth's (a baseline whose parameters a fit left off 
 its error must not be named as an effect); ``--refit`` refits those three with every
 candidate (``dejax diagnose --refit``).
 
-full: 3 controls, 12 effects at small, medium and large magnitude, 4 pairs (43 cases);
+full: 3 controls, 13 effects at small, medium and large magnitude, 4 pairs (46 cases);
 small: 3 controls, the large magnitudes, 2 pairs. Not in the truth set: added_mass (the
 reduced model has no inertia; at 1-10 Hz a 1 mm block shows none) and the second-order
 electrostriction eps_a (I1bar - 3 ~ 1e-3 here: below the noise); both stay candidates.
@@ -48,6 +49,7 @@ TRUTHS = {  # effect: (small, medium, large)
     "prestress": ({"s0": 3e3}, {"s0": 8e3}, {"s0": 15e3}),
     "prestretch": ({"lam": 1.01}, {"lam": 1.03}, {"lam": 1.1}),
     "electrostriction": ({"eps_b": -0.05}, {"eps_b": -0.15}, {"eps_b": -0.3}),
+    "mullins": ({"d": 0.1, "m": 150.0}, {"d": 0.25, "m": 150.0}, {"d": 0.5, "m": 150.0}),
     "sensor_offset": ({"c": 2e-4}, {"c": 6e-4}, {"c": 2e-3}),
     "sensor_drift": ({"rate": 1e-4}, {"rate": 3e-4}, {"rate": 1e-3}),
     "sensor_latency": ({"delay": 0.002}, {"delay": 0.007}, {"delay": 0.02}),

@@ -81,3 +81,19 @@ def test_extra_unit_slows_the_response():
     base = B.block_response(t, 12e3, 2.0, {})
     creep = B.block_response(t, 12e3, 2.0, {"creep": {"mu": 40e3, "tau": 3.0}})
     assert np.max(creep) < np.max(base)  # a stiff slow unit holds the film back within the cycles
+
+
+def test_mullins_acts_below_the_largest_stretch_only():
+    """Ogden-Roxburgh softening on the block: the first loading (up to the first peak, t = 0.25 s
+    at 2 Hz) is the virgin response (eta = 1 on the primary path); from the first unloading on,
+    the softened block stretches more than the virgin one at the same voltage, the more for the
+    larger d."""
+    t = np.linspace(0.0, 1.0, 81)
+    base = B.block_response(t, 14e3, 2.0, {})
+    soft = {d: B.block_response(t, 14e3, 2.0, {"mullins": {"d": d, "m": 150.0}}) for d in (0.25, 0.5)}
+    first = t <= 0.25
+    later = (t > 0.3) & (np.abs(np.sin(2 * np.pi * 2.0 * t)) > 0.2)  # away from the peaks and troughs
+    for d, lam in soft.items():
+        np.testing.assert_allclose(lam[first], base[first], rtol=0, atol=1e-9)
+        assert np.all(lam[later] - base[later] > 1e-4)
+    assert np.all(soft[0.5][later] > soft[0.25][later])

@@ -7,6 +7,7 @@ in docs/paper-notes.md.
 import math
 import re
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import optimize
@@ -187,6 +188,37 @@ def test_block_two_units_split():
     phi = 12e3 * 0.5 * (1 + np.sin(np.pi * np.minimum(t, 1) - np.pi / 2))
     zero = R.homogeneous_block_response(t, R.eq41(12e3), L, MU_INF, JM_INF, EPS, (), (), ())
     np.testing.assert_allclose(zero, R.gent_equibiaxial_stretch(phi, L, MU_INF, JM_INF, EPS), atol=1e-13)
+
+
+def test_block_mullins_softening_against_the_hand_written_equilibrium():
+    """No viscous unit, phi = 20 kV sin(pi t / 2) over t in [0, 2]: loading to 20 kV (t = 1) on
+    the virgin curve, then unloading, where the Gent term is softened by eta = 1 - d erf((W1 -
+    W)/m), W = -mu Jm/2 ln H the equal-biaxial Gent energy and W1 its value at the peak:
+    lam(t) solves eta (lam^-2 - lam^-8)/H = eps (phi/L)^2 / mu, hand-written here for brentq.
+    Off (d = 0) the same call gives the virgin curve on the way down as well."""
+    d, m = 0.4, 300.0
+    t = np.array([0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75])
+    phi = 20e3 * np.sin(np.pi * t / 2)
+
+    def W(lam):
+        return -0.5 * MU_INF * JM_INF * np.log(gent_H(2 * lam**2 + lam**-4, JM_INF))
+
+    def solve(p, eta=lambda lam: 1.0):
+        return optimize.brentq(lambda l: eta(l) * MU_INF * (l**-2 - l**-8) / gent_H(2 * l * l + l**-4, JM_INF)
+                               - EPS * (p / L) ** 2, 1.0, 1.2, xtol=1e-15, rtol=1e-15)
+
+    lam1 = solve(20e3)
+    soft = lambda lam: 1.0 - d * math.erf((W(lam1) - W(lam)) / m)  # noqa: E731
+    ref = np.array([solve(p) if tt <= 1.0 else solve(p, soft) for p, tt in zip(phi, t)])
+    virgin = np.array([solve(p) for p in phi])
+    phi_fn = lambda tt: 20e3 * jnp.sin(jnp.pi * tt / 2)  # noqa: E731
+    lam = R.homogeneous_block_response(t, phi_fn, L, MU_INF, JM_INF, EPS, (), (), (), mullins_d=d, mullins_m=m)
+    off = R.homogeneous_block_response(t, phi_fn, L, MU_INF, JM_INF, EPS, (), (), ())
+    assert W(lam1) > 3 * m  # the softening reaches most of d at phi = 0
+    # lam_max is integrated (dlam_max/dt = dlam/dt while rising): it ends the loading 3e-8 short
+    np.testing.assert_allclose(lam, ref, rtol=0, atol=3e-8)
+    np.testing.assert_allclose(off, virgin, atol=1e-12)
+    assert np.all(lam[4:] - virgin[4:] > 1e-4)  # softer on the way down: larger stretch
 
 
 # ---------------------------------------------------------------------------

@@ -22,6 +22,9 @@ prestretch           the equilibrium branch's natural state lam^-1 in plane (kin
                      nominal stress mu_inf lam (lam - lam^-5) / H_inf(lam) on the lateral faces
 electrostriction     eps_b: permittivity eps (1 + eps_b (lam_z - 1)) in the reduced
                      equilibrium (``homogeneous_block_response(eps_b=...)``)
+mullins              d, m: the equilibrium branch's stress times 1 - d erf((W_max - W)/m), W its
+                     equal-biaxial Gent energy, W_max = W at the largest stretch so far (a state
+                     of the reduced model's ODE, ``homogeneous_block_response(mullins_d=...)``)
 sensor_offset        y + c
 sensor_drift         y + rate t
 sensor_latency       y(t - delay) (the model evaluated at the delayed times; 1 before)
@@ -43,16 +46,18 @@ __all__ = ["BLOCK", "REALISED", "block_response"]
 # the paper's Sec. 4 block (scenarios.block_material, L = 1 mm)
 BLOCK = dict(L=1e-3, mu_inf=67e3, Jm_inf=15.0, eps=4e-11, mu=[67e3], Jm=[5.0], eta=[3000.0])
 REALISED = ("creep", "hysteresis", "voltage_lag", "leakage", "mu_drift", "electrode_stiffness", "prestress",
-            "prestretch", "electrostriction", "sensor_offset", "sensor_drift", "sensor_latency")
+            "prestretch", "electrostriction", "mullins", "sensor_offset", "sensor_drift", "sensor_latency")
 
 
 def _rc_sine(t, c, omega, tau):
     """Closed-form first-order low-pass (time constant tau, zero initial state) of
-    c (1 - cos omega t); tau = 0 gives the input (the exponentials vanish)."""
-    tau = jnp.maximum(tau, 1e-300)
+    c (1 - cos omega t); tau = 0 gives the input (differentiable in t there too)."""
+    lag = tau > 0
+    tau = jnp.where(lag, tau, 1.0)
     e = jnp.exp(-t / tau)
     wt = omega * tau
-    return c * (1.0 - e) - c * (jnp.cos(omega * t) + wt * jnp.sin(omega * t) - e) / (1.0 + wt**2)
+    filtered = c * (1.0 - e) - c * (jnp.cos(omega * t) + wt * jnp.sin(omega * t) - e) / (1.0 + wt**2)
+    return jnp.where(lag, filtered, c - c * jnp.cos(omega * t))
 
 
 def _phi_eff(c, omega, lag, frac, tau_leak, rate, t):
@@ -96,7 +101,7 @@ def block_response(t, phi_max: float, freq: float, effects: dict | None = None, 
     lam_sorted = models.homogeneous_block_response(
         ts[order], phi_fn, block["L"], mu_inf, block["Jm_inf"], block["eps"], mu, Jm, eta,
         eps_b=_value(effects, "electrostriction", "eps_b"), prestress=_value(effects, "prestress", "s0") + frame,
-        prestretch=lam_p)
+        prestretch=lam_p, mullins_d=_value(effects, "mullins", "d"), mullins_m=_value(effects, "mullins", "m", 1e4))
     lam = np.empty_like(lam_sorted)
     lam[order] = lam_sorted
     return lam + _value(effects, "sensor_offset", "c") + _value(effects, "sensor_drift", "rate") * (t - t[0])

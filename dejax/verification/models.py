@@ -278,8 +278,35 @@ def _newton_primal(resid, z0, x, t, args):
     return jnp.where(ok, z, jnp.nan)
 
 
+def _bracketed_primal(resid, lo, hi, x, t, args):
+    """Root of resid(., x, t, args), increasing on [lo, hi] with resid(lo) <= 0 <= resid(hi):
+    Newton steps, bisection where a step leaves the bracket (safe where the residual bends
+    sharply, as Mullins softening makes it)."""
+    g = lambda z: resid(z, x, t, args)
+    dg = jax.grad(g)
+
+    def body(c):
+        lo, hi, z, _, k = c
+        gz = g(z)
+        lo, hi = jnp.where(gz < 0, z, lo), jnp.where(gz < 0, hi, z)
+        zn = z - gz / dg(z)
+        zn = jnp.where(jnp.isfinite(zn) & (zn > lo) & (zn < hi), zn, 0.5 * (lo + hi))
+        return lo, hi, zn, jnp.abs(zn - z), k + 1
+
+    def cond(c):
+        _, _, z, step, k = c
+        return (step > 1e-14 * jnp.abs(z)) & (k < 200)
+
+    _, _, z, step, _ = jax.lax.while_loop(cond, body, (lo, hi, lo, jnp.asarray(jnp.inf, lo.dtype), 0))
+    ok = jnp.isfinite(z) & (step <= 1e-10 * jnp.abs(z)) & jnp.isfinite(g(z))
+    return jnp.where(ok, z, jnp.nan)
+
+
 def _newton_impl(resid, static, z0, x, t, dyn):
-    return _newton_primal(resid, z0, x, t, eqx.combine(dyn, static))
+    args = eqx.combine(dyn, static)
+    if z0.shape == (2,):  # a bracket [lo, hi]
+        return _bracketed_primal(resid, z0[0], z0[1], x, t, args)
+    return _newton_primal(resid, z0, x, t, args)
 
 
 _newton_impl = jax.custom_jvp(_newton_impl, nondiff_argnums=(0, 1))
@@ -297,7 +324,8 @@ def _newton_jvp(resid, static, primals, tangents):
 
 
 def _newton(resid, z0, x, t, args):
-    """Root z of resid(z, x, t, args) = 0 from z0 (NaN if Newton fails or the root is inadmissible).
+    """Root z of resid(z, x, t, args) = 0 from z0 (NaN if Newton fails or the root is inadmissible);
+    z0 of shape (2,) is a bracket [lo, hi] of an increasing residual (``_bracketed_primal``).
 
     Derivatives with respect to x, t and the array leaves of args follow from the implicit
     function theorem (custom JVP), so Jacobians for implicit ODE solvers are exact.
@@ -397,9 +425,18 @@ def _nan_unless(ok, v):
 # ---------------------------------------------------------------------------
 
 
-def _block_resid(lam, xi, t, args):
-    """[sum of elastic terms - eps (phi/L)^2] / mu_inf of the equal-biaxial block (NaN if inadmissible)."""
+def _block_gent_energy(x, p):
+    """W/mu_inf: the equilibrium branch's equal-biaxial Gent energy at the in-plane stretch x."""
+    return -0.5 * p["Jm_inf"] * jnp.log(1.0 - (2.0 * x**2 + x**-4 - 3.0) / p["Jm_inf"])
+
+
+def _block_resid(lam, state, t, args):
+    """[sum of elastic terms - eps (phi/L)^2] / mu_inf of the equal-biaxial block (NaN if inadmissible).
+
+    ``state``: xi (the units' stretches), or (xi, lam_max) with Mullins softening (lam_max the
+    largest stretch so far: W is increasing in the stretch, so the largest energy is W(lam_max))."""
     p, phi_fn = args
+    xi, lam_max = state if isinstance(state, tuple) else (state, None)
     phi = phi_fn(t)
     # the equilibrium branch at the stretch x = lam lam_pre from the film's natural state (a
     # kinematic pre-stretch): d/dlam Gent(x) / (2 mu_inf lam^3) = (lam_pre^2 lam^-2 - lam_pre^-4 lam^-8) / H_inf
@@ -409,6 +446,11 @@ def _block_resid(lam, xi, t, args):
     Hinf = 1.0 - (2.0 * x**2 + x**-4 - 3.0) / p["Jm_inf"]
     Hs = 1.0 - (2.0 * lam**2 * xi**-2 + lam**-4 * xi**4 - 3.0) / p["Jm"]
     r = (lp**2 * lam**-2 - lp**-4 * lam**-8) / Hinf
+    if lam_max is not None:
+        # Ogden-Roxburgh: the Gent term's stress times eta = 1 - d erf((W_max - W)/m), eta held
+        W = p["mu_inf"] * _block_gent_energy(x, p)
+        W_max = jnp.maximum(p["mu_inf"] * _block_gent_energy(lam_max * lp, p), W)
+        r = r * (1.0 - p["mullins_d"] * jax.scipy.special.erf((W_max - W) / p["mullins_m"]))
     r = r + jnp.sum(p["mu"] / p["mu_inf"] * (lam**-2 * xi**-2 - lam**-8 * xi**4) / Hs)
     # electrostatic term, with the first-order electrostriction eps (1 + b (lam_z - 1)), lam_z = lam^-2:
     # d/dlam [-eps/2 (1 + b (lam^-2 - 1)) E^2 lam^4] / (2 lam^3) = -eps E^2 (1 - b + b lam^-2 / 2)
@@ -427,30 +469,55 @@ def _block_rate(lam, xi, t, args):
     return p["mu"] / (3.0 * p["eta"] * Hs) * (lam**2 / xi - lam**-4 * xi**5)
 
 
-def _block_lam(xi, t, args):
+def _block_lam(state, t, args):
     # warm start: the stretch at which the most relaxed unit would carry no stress (lam = xi),
     # not below the reference state: exact when all units are relaxed, 1 when they are frozen
-    return _newton(_block_resid, jnp.maximum(1.0, jnp.max(xi)), xi, t, args)
+    xi = state[0] if isinstance(state, tuple) else state
+    lam = _newton(_block_resid, jnp.maximum(1.0, jnp.max(xi)), xi, t, args)
+    if not isinstance(state, tuple):
+        return lam
+    # Mullins: eta <= 1 only below lam_max, so the softened root lies between the virgin one
+    # (above) and lam_max, where eta = 1 (the residual bends sharply there: bracketed Newton)
+    return _newton(_block_resid, jnp.stack([lam, jnp.maximum(state[1], lam)]), state, t, args)
 
 
 def _block_field(t, xi, args):
     return _block_rate(_block_lam(xi, t, args), xi, t, args)
 
 
+_LAM_MAX_BAND = 1e-7
+"""lam_max follows a rising lam from within this band below it (a step in the switch would
+stall the adaptive Runge-Kutta steps, whose stages put lam_max ahead of lam)."""
+
+
+def _block_field_mullins(t, state, args):
+    """(dxi/dt, dlam_max/dt): lam_max follows lam while lam is at its largest and rising
+    (dlam/dt by the implicit function theorem at fixed lam_max), switched on linearly over
+    ``_LAM_MAX_BAND`` below lam_max; else it stays."""
+    xi, lam_max = state
+    lam = _block_lam(state, t, args)
+    dxi = _block_rate(lam, xi, t, args)
+    _, dlam = jax.jvp(lambda x_, t_: _block_lam((x_, lam_max), t_, args), (xi, t), (dxi, jnp.ones_like(t)))
+    on = jnp.clip(1.0 + (lam - lam_max) / _LAM_MAX_BAND, 0.0, 1.0)
+    return dxi, on * jnp.maximum(dlam, 0.0)
+
+
 @eqx.filter_jit
-def _block_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate):
+def _block_solve(t0, ts, args, solver, rtol, atol, max_steps, integrate, mullins=False):
     xi0 = jnp.ones(args[0]["mu"].shape)
+    y0, field = ((xi0, jnp.ones(())), _block_field_mullins) if mullins else (xi0, _block_field)
     if integrate:
-        xis, ok, nsteps = _diffeqsolve(_block_field, xi0, t0, ts, args, solver, rtol, atol, max_steps)
+        ys, ok, nsteps = _diffeqsolve(field, y0, t0, ts, args, solver, rtol, atol, max_steps)
     else:
-        xis, ok, nsteps = jnp.ones(ts.shape + xi0.shape), jnp.asarray(True), jnp.asarray(0)
-    lam = jax.vmap(lambda x, tt: _block_lam(x, tt, args))(xis, ts)
-    return lam, xis, ok, nsteps
+        ys = jax.tree_util.tree_map(lambda y: jnp.ones(ts.shape + y.shape), y0)
+        ok, nsteps = jnp.asarray(True), jnp.asarray(0)
+    lam = jax.vmap(lambda y, tt: _block_lam(y, tt, args))(ys, ts)
+    return lam, ys[0] if mullins else ys, ok, nsteps
 
 
 def homogeneous_block_response(
     t, phi_fn, L, mu_inf, Jm_inf, eps, mu, Jm, eta, rtol=1e-10, atol=1e-12, *, t0=0.0, solver=None,
-    max_steps=1_000_000, return_xi=False, eps_b=0.0, prestress=0.0, prestretch=1.0,
+    max_steps=1_000_000, return_xi=False, eps_b=0.0, prestress=0.0, prestretch=1.0, mullins_d=0.0, mullins_m=1e4,
 ):
     r"""Equal-biaxial stretch lam(t) of the incompressible viscoelastic Gent block (N >= 0 units).
 
@@ -466,6 +533,10 @@ def homogeneous_block_response(
         H_s   = 1 - (2 lam^2 xi_s^-2 + lam^-4 xi_s^4 - 3)/Jm_s
 
     with xi_s(t0) = 1 (Cv = I at rest). For one unit this is exactly the paper notes' system.
+    With Mullins softening (``mullins_d`` > 0) the equilibrium branch's term is multiplied by
+    eta = 1 - d erf((W(lam_max) - W(lam))/m), W the branch's equal-biaxial Gent energy
+    (W = -mu_inf Jm_inf/2 ln H_inf) and lam_max the largest stretch so far (W increases with
+    the stretch for lam lam_p >= 1: the block under voltage only expands in plane).
 
     Method (index-1 DAE): an ODE in the viscous stretches xi only; at every right-hand-side
     evaluation the algebraic equilibrium is solved for lam by a scalar Newton iteration
@@ -497,6 +568,8 @@ def homogeneous_block_response(
       prestress: nominal in-plane dead-load stress s (Pa) on the four lateral faces (default 0).
       prestretch: equal-biaxial kinematic pre-stretch lam_p (-) of the equilibrium branch
         (default 1): its natural state is lam_p^-1 in plane, the viscous units' the reference.
+      mullins_d, mullins_m: Ogden-Roxburgh softening (-, Pa; default off): lam_max joins the
+        ODE's state, rising with lam while lam is at its largest.
     Returns:
       lam(t) as a numpy array (and xi(t) if requested).
     Raises:
@@ -508,11 +581,14 @@ def homogeneous_block_response(
     ts = _times(t, t0)
     mup, Jmp, etap = _padded(mu, Jm, eta)
     p = {k: jnp.asarray(v, float) for k, v in dict(mu_inf=mu_inf, Jm_inf=Jm_inf, eps=eps, L=L, mu=mup, Jm=Jmp, eta=etap,
-                                                   eps_b=eps_b, s_pre=prestress, lam_pre=prestretch).items()}
+                                                   eps_b=eps_b, s_pre=prestress, lam_pre=prestretch,
+                                                   mullins_d=mullins_d, mullins_m=mullins_m).items()}
     args = (p, phi_fn)
     integrate = bool(ts[-1] > t0)  # N = 0 runs through the same (padded, inert) path: one compilation
     solver = solver or diffrax.Tsit5()
-    lam, xis, ok, nsteps = _block_solve(jnp.asarray(t0, float), _bucket(ts), args, solver, rtol, atol, max_steps, integrate)
+    mullins = bool(mullins_d > 0)  # the softening's state only where it is on: the same program otherwise
+    lam, xis, ok, nsteps = _block_solve(jnp.asarray(t0, float), _bucket(ts), args, solver, rtol, atol, max_steps,
+                                        integrate, mullins)
     lam, xis = np.asarray(lam)[: ts.size], np.asarray(xis)[: ts.size]
     _check_run(ok, nsteps, max_steps, "homogeneous_block_response", ts, xis)
     if not np.all(np.isfinite(lam)):
