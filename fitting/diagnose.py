@@ -19,13 +19,17 @@ viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Tr
     residuals per effect parameter (a simulation per model-effect parameter, none for the
     sensor effects), and for every candidate and every pair the bounded linear
     least-squares fit of the baseline residuals on its columns (a score-type test: the
-    SSE and BIC the first-order model predicts). The best ``fit_top`` candidates (and, when
+    SSE and BIC the first-order model predicts; the parameters of an effect switched off
+    by its gate, such as a unit's relaxation time at zero modulus, act on nothing there and
+    get a zero column without a simulation). The best ``fit_top`` candidates (and, when
     no single leaves residuals at the noise level, the best ``fit_pairs`` screened pairs,
     more while none does) are then fitted on the fit traces (their parameters only, the
     baseline held; start = the better of the off values and the screening's step; bounded
     Levenberg-Marquardt of ``fitting.least_squares`` on normalised parameters with a
     forward-difference Jacobian, Broyden-updated between its evaluations, so the one
-    compiled ``simulate`` is reused), and ranked:
+    compiled ``simulate`` is reused); once a fitted single leaves residuals at the noise
+    level, a further single is fitted only if its screened BIC comes within ``SKIP_MARGIN``
+    x ``bic_threshold`` of that one's (else it could not be an equivalent explanation). Ranked:
     significant effects first (Delta BIC < -``bic_threshold``, and a holdout RMS not above
     the baseline's by more than its sampling sd 1/sqrt(2 n_hold): an effect that improves
     the fit traces but worsens the withheld ones explains nothing), within them by the holdout
@@ -36,7 +40,8 @@ viscous units, see ``fitting.effects``) and measured traces (``fitting.traces.Tr
     the reference, and they are refitted jointly with every candidate (screening included);
     they count in no candidate's k.
 (c) HOW FAR: RMS and "gap" = sqrt(max(RMS^2 - sigma^2, 0)) before/after, on fit and
-    holdout, overall and per feature.
+    holdout, overall and per feature, each with its spread (``gap.shrinkage_spread``:
+    replicate noise and the fitted effect's Gauss-Newton covariance, ``fitted_covariance``).
 
 Noise level sigma: given, or estimated from the measured traces by 4th differences
 (sigma^2 = mean((Delta^4 y)^2)/70, unbiased for white noise when the signal is smooth
@@ -136,6 +141,12 @@ class Diagnosis:
         return d
 
 
+SKIP_MARGIN = 10.0
+"""Once a fitted single is at the noise level, a single whose screened BIC lies more than
+SKIP_MARGIN x bic_threshold above it is not fitted (the screening's linearization was seen
+to be pessimistic by tens: a sensor latency screened above a voltage lag it then equalled)."""
+
+
 def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | None = None,
              noise: float | None = None, bic_threshold: float = 10.0, z: float = 4.0, max_iter: int = 8,
              start: Mapping | None = None, verbose: bool = False, fit_top: int = 3, pairs: bool = True,
@@ -206,6 +217,16 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
 
     results = []
     scr = None
+
+    def screened_only(g):
+        """Record the single ``g`` with the screening's linearized figures (not fitted)."""
+        sc = scr[g]
+        k = fx.get(g[0]).n_params
+        aic, bic = criteria(sc.sse, n, k)
+        vals = fx.values_at(list(g) + refit_fx, sc.z)
+        results.append(CandidateResult(g[0], vals, {}, k, sc.sse, math.sqrt(sc.sse / n), None, aic, bic,
+                                       aic - aic0, bic - bic0, 0, 0.0, fitted=False))
+
     pair_queue = []
     to_fit = [(name,) for name in candidates]
     if fit_top and len(candidates) > fit_top:
@@ -224,12 +245,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
                   + (f", then up to {max_pairs} of the pairs " + ", ".join("+".join(g) for g in pair_queue[:max_pairs])
                      if pair_queue else ""), flush=True)
         for g in singles[fit_top:]:
-            sc = scr[g]
-            k = fx.get(g[0]).n_params
-            aic, bic = criteria(sc.sse, n, k)
-            vals = fx.values_at(list(g) + refit_fx, sc.z)
-            results.append(CandidateResult(g[0], vals, {}, k, sc.sse, math.sqrt(sc.sse / n), None, aic, bic,
-                                           aic - aic0, bic - bic0, 0, 0.0, fitted=False))
+            screened_only(g)
 
     def at_noise(rs):
         return any(r.sse_fit / n <= chi_lim * sigma ** 2 for r in rs)
@@ -237,8 +253,21 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     def queue():
         """Singles, then pairs: none when a single leaves residuals at the noise level; the best
         ``fit_pairs`` screened pairs, and further ones (up to ``max_pairs``) while no fitted
-        candidate reaches the noise level."""
-        yield from to_fit
+        candidate reaches the noise level. Once a fitted single leaves residuals at the noise
+        level, a further single is fitted only if its screened (linearized) BIC comes within
+        ``SKIP_MARGIN`` x ``bic_threshold`` of that single's: one that could be an equivalent
+        explanation (the linearization can be pessimistic by tens)."""
+        for g in to_fit:
+            done = [r for r in results if r.fitted and "+" not in r.name]
+            if scr is not None and at_noise(done):
+                best_bic = min(r.bic for r in done if r.sse_fit / n <= chi_lim * sigma ** 2)
+                if criteria(scr[g].sse, n, fx.get(g[0]).n_params)[1] > best_bic + SKIP_MARGIN * bic_threshold:
+                    if verbose:
+                        print(f"  {g[0]} not fitted: its screened BIC is more than {SKIP_MARGIN * bic_threshold:g} "
+                              "above a fitted effect's at the noise level", flush=True)
+                    screened_only(g)
+                    continue
+            yield g
         for j, g in enumerate(pair_queue[:max_pairs]):
             fitted = [r for r in results if r.fitted]
             if at_noise(r for r in fitted if "+" not in r.name):

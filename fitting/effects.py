@@ -256,6 +256,9 @@ class Effect:
     on_sensor: bool = False  # a model effect that also acts on the sensor (mu_drift on a stress)
     # extra starting values read off the traces (a threshold effect starts where it acts)
     data_starts: Callable[[Sequence], list] | None = None
+    # the parameter whose off value switches the whole effect off: there the others act on
+    # nothing (a unit's relaxation time at zero modulus), so their screening columns are zero
+    gate: str | None = None
 
     def starts(self, traces) -> list[dict]:
         """Starting values from the data (``data_starts``; none by default)."""
@@ -437,10 +440,10 @@ def _latency(p, v):
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("creep", (Param("mu", 0.0, (0.0, 2e5), 5e3, unit="Pa", doc="shear modulus of the extra unit"),
                      Param("tau", 5.0, (0.5, 50.0), 5.0, "log", "s", "relaxation time eta/(2 mu)")),
-           _creep, "additional slow viscous Gent unit (creep / slow relaxation over many cycles)"),
+           _creep, "additional slow viscous Gent unit (creep / slow relaxation over many cycles)", gate="mu"),
     Effect("hysteresis", (Param("mu", 0.0, (0.0, 2e5), 5e3, unit="Pa"),
                           Param("tau", 0.05, (1e-3, 0.5), 0.05, "log", "s")),
-           _hyst, "additional fast viscous Gent unit (loop area / hysteresis within a cycle)"),
+           _hyst, "additional fast viscous Gent unit (loop area / hysteresis within a cycle)", gate="mu"),
     Effect("voltage_lag", (Param("tau", 0.0, (0.0, 0.2), 0.0, unit="s", doc="RC time constant"),),
            _lag, "first-order lag between commanded and electrode voltage (source/electrode resistance x capacitance)",
            needs=("voltage",)),
@@ -452,7 +455,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("leakage", (Param("frac", 0.0, (0.0, 0.6), 0.0, doc="screened fraction of the field at steady state"),
                        Param("tau", 2.0, (0.05, 50.0), 2.0, "log", "s", "charging time of the screening layer")),
            _leak, "leakage current / charge injection: effective field decays under constant voltage",
-           needs=("voltage",)),
+           needs=("voltage",), gate="frac"),
     Effect("electrostriction", (Param("eps_b", 0.0, (-0.5, 0.5), 0.0,
                                       doc="first order: eps(1 + eps_b (lambda_E - 1)), lambda_E the stretch along the field"),
                                 Param("eps_a", 0.0, (-0.3, 0.3), 0.0, doc="second order: eps(1 + eps_a (I1bar - 3))")),
@@ -481,7 +484,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
                        Param("m", 1e2, (1e2, 1e6), 1e4, "log", "Pa", "energy scale of the softening")),
            _mullins, "Mullins-type stress softening (Ogden-Roxburgh): the equilibrium branch softer on unloading "
            "and reloading below the largest energy a point has seen (a history variable per Gauss point)",
-           data_starts=_mullins_starts),
+           data_starts=_mullins_starts, gate="d"),
     Effect("sensor_offset", (Param("c", 0.0, (-1.0, 1.0), 0.0, unit="output"),), _offset,
            "constant sensor offset", "sensor"),
     Effect("sensor_drift", (Param("rate", 0.0, (-1.0, 1.0), 0.0, unit="output/s"),), _drift,

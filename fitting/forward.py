@@ -5,7 +5,7 @@
   (the measurement: the sensor effects applied to ``raw``), ``residuals(effects_list,
   traces)``; one compiled ``simulate`` for the baseline and every candidate (effects only
   swap leaves), each simulation cached per trace and model-effect values, the simulations
-  of a call started together so that independent runs overlap; ``n_sims`` counts them.
+  of a call run side by side on a thread per CPU core; ``n_sims`` counts them.
 * ``residuals_at(fwd, names, traces)``: the residuals as a function of the normalized
   parameters z of the effects ``names`` (``effects.param_list``), several points at once;
   ``fd_jacobian``: their forward-difference Jacobian in z (step ``FD_STEP``).
@@ -16,6 +16,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Mapping, Sequence
 
 import equinox as eqx
@@ -30,6 +33,10 @@ from .traces import Trace
 
 __all__ = ["Forward", "FD_STEP", "residuals_at", "fd_jacobian", "forward_from_experiment", "block_forward",
            "synthetic_traces", "simulated_responses", "simulate_experiment"]
+
+
+SIM_THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+"""Threads that run a call's simulations side by side (``Forward.raw_many``): the usable CPU cores."""
 
 
 class Forward:
@@ -60,6 +67,7 @@ class Forward:
         self.transform = transform
         self._cache: dict = {}
         self.n_sims = 0
+        self._count = threading.Lock()
 
     @staticmethod
     def _key(effects: Mapping, trace: Trace):
@@ -77,7 +85,8 @@ class Forward:
         loading = self.drive(p.loading, trace)
         n = len(trace.time) - 1
         pad = max(self.pad_to or n, n)
-        self.n_sims += 1
+        with self._count:
+            self.n_sims += 1
         state0 = self._preloaded_state(p.model, loading, float(trace.time[0]))
         return p.model, loading, pad, it.simulate(p.model, loading, trace.time, self.problem.output_fn, self.scheme,
                                                   self.newton, state0=state0, pad_to=pad, control=None)  # fixed steps
@@ -101,7 +110,8 @@ class Forward:
             sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full,
                               state0=self._preloaded_state(model, loading, float(trace.time[0])), pad_to=pad,
                               control=None)
-            self.n_sims += 1
+            with self._count:
+                self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)
         if not sol.ok:  # failed run: report a huge residual rather than crash the ranking
             y = np.where(np.isfinite(y), y, 0.0)
@@ -112,17 +122,29 @@ class Forward:
 
     def raw_many(self, jobs: Sequence[tuple]) -> list[np.ndarray]:
         """Model outputs (before the sensor transform) of ``jobs`` = [(effects, trace)], each
-        on its trace's time grid: the simulations not cached are all started before any is
-        waited for, so that independent runs overlap on a multi-core CPU."""
+        on its trace's time grid. The simulations not cached run on a pool of threads, one per
+        CPU core (``SIM_THREADS``): XLA:CPU runs the programs dispatched from one thread one
+        after the other, and releases the GIL while it runs (four 4,000-step block runs on 2
+        cores: 7.5 s dispatched together from one thread, 5.3 s from two threads)."""
         if len(self._cache) > 2000:
             self._cache.clear()
-        started = {}
+        todo = {}
         for effects, trace in jobs:
             key = self._key(effects, trace)
-            if key not in self._cache and key not in started:
-                started[key] = (effects, trace, self._launch(effects, trace))
-        for key, (effects, trace, launched) in started.items():
-            self._cache[key] = self._finish(effects, trace, launched)
+            if key not in self._cache and key not in todo:
+                todo[key] = (effects, trace)
+
+        def run(job):
+            effects, trace = job
+            return self._finish(effects, trace, self._launch(effects, trace))
+
+        workers = min(len(todo), SIM_THREADS)
+        if workers > 1:
+            with ThreadPoolExecutor(workers) as pool:
+                outs = list(pool.map(run, todo.values()))
+        else:
+            outs = [run(job) for job in todo.values()]
+        self._cache.update(zip(todo, outs))
         return [self._cache[self._key(e, t)] for e, t in jobs]
 
     def raw(self, effects: Mapping, trace: Trace) -> np.ndarray:
@@ -197,19 +219,29 @@ FD_STEP = 1e-3
 [0, 1] (one-sided, into the box)."""
 
 
-def fd_jacobian(resid_many, z, r, h: float = FD_STEP, overrides=None) -> np.ndarray:
-    """(m, k) forward differences at z: step h, backward where z + h leaves [0, 1], except
-    the parameters j in ``overrides`` ({j: step}), which take their own step;
-    ``resid_many(list of z) -> list of residuals`` evaluates the k points together."""
+def fd_steps(z, h: float = FD_STEP, overrides=None) -> np.ndarray:
+    """The steps of ``fd_jacobian`` at z: h, -h where z + h leaves [0, 1], ``overrides`` ({j: step})."""
     steps = np.where(z + h <= 1.0, h, -h)
     for j, s in (overrides or {}).items():
         steps[j] = s
+    return steps
+
+
+def fd_jacobian(resid_many, z, r, h: float = FD_STEP, overrides=None, zero=()) -> np.ndarray:
+    """(m, k) forward differences at z (steps ``fd_steps``); ``resid_many(list of z) -> list
+    of residuals`` evaluates the points together; the columns ``zero`` (indices known to
+    leave the residuals as they are) are zeros, not evaluated."""
+    steps = fd_steps(z, h, overrides)
+    cols = [j for j in range(z.size) if j not in set(zero)]
     points = []
-    for j in range(z.size):
+    for j in cols:
         zz = z.copy()
         zz[j] += steps[j]
         points.append(zz)
-    return np.stack([(rj - r) / hj for rj, hj in zip(resid_many(points), steps)], axis=1)
+    J = np.zeros((r.size, z.size))
+    for j, rj in zip(cols, resid_many(points) if points else []):
+        J[:, j] = (rj - r) / steps[j]
+    return J
 
 
 # ----------------------------------------------------------------------------- experiment files

@@ -46,6 +46,17 @@ class Screened:
     d_bic: float
 
 
+def inert_columns(names: Sequence[str], z: np.ndarray) -> list[int]:
+    """Indices of the parameters of ``names`` (``effects.param_list``) that act on nothing at
+    the normalized point z: those of an effect whose gate parameter (``Effect.gate``, e.g. a
+    unit's modulus) is at its off value. Their forward-difference columns are zero (to the
+    dormant unit's round-off) without a simulation."""
+    values = fx.values_at(names, z)
+    return [j for j, (name, p) in enumerate(fx.param_list(names))
+            if (gate := fx.get(name).gate) is not None and p.name != gate
+            and values[name][gate] == fx.get(name).off()[gate]]
+
+
 def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0: np.ndarray,
            pairs: bool = True, extra: Sequence[str] = (), base: Mapping | None = None) -> dict:
     """Score-type screening at the baseline (every effect off): one forward-difference column
@@ -71,7 +82,7 @@ def screen(fwd: Forward, candidates: Sequence[str], traces: Sequence[Trace], r0:
         return p.z_of(starts[len(starts) // 2] if starts else p.start) - z0
 
     probes = {j: secant(name, p, z0) for j, ((name, p), z0) in enumerate(zip(plist, z_off)) if p.probe}
-    J = fd_jacobian(resid_many, z_off, r_off, overrides=probes)
+    J = fd_jacobian(resid_many, z_off, r_off, overrides=probes, zero=inert_columns(names, z_off))
     n = r0.size
     sse0 = float(r0 @ r0)
     _, bic0 = criteria(sse0, n, 0)

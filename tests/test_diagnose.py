@@ -222,3 +222,15 @@ def test_at_bounds_names_parameters_on_a_bound_but_not_at_their_off_value():
     assert dg.at_bounds({"creep": {"mu": 2e5, "tau": 5.0}}) == ["creep.mu"]  # mu's upper bound
     assert dg.at_bounds({"creep": {"mu": 0.0, "tau": 50.0}}) == ["creep.tau"]  # mu = 0 is off
     assert dg.at_bounds({"refit:mu_1": {"factor": 10.0}, "voltage_lag": {"tau": 0.01}}) == ["refit:mu_1.factor"]
+
+
+def test_a_candidate_that_cannot_compete_is_not_fitted_once_one_reaches_the_noise():
+    """An offset of 20 sigma: the offset, screened first, leaves residuals at the noise level;
+    the other screened candidates, whose linearized BIC is far above it, are reported with
+    their screened figures instead of being fitted (the diagnosis's cost), the verdict alike."""
+    tr = analytic_traces({"sensor_offset": {"c": 2e-3}}, seed=6)
+    d = dg.diagnose(AnalyticForward(), tr, CANDS, fit_top=3)
+    assert d.best == "sensor_offset"
+    assert [c["name"] for c in d.ranking if c["fitted"]] == ["sensor_offset"]
+    others = [c for c in d.ranking if not c["fitted"]]
+    assert len(others) == len(CANDS) - 1 and all(c["bic"] > d.ranking[0]["bic"] + 10 for c in others)

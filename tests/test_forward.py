@@ -43,6 +43,18 @@ def test_simulations_are_cached_and_sensor_effects_run_none():
     assert fwd.n_sims == 2  # one simulation for a new model effect, once
 
 
+def test_simulations_of_one_call_run_on_threads_and_give_the_one_by_one_results(monkeypatch):
+    t = analytic_traces({}, seed=0)
+    jobs = [({"voltage_lag": {"tau": tau}}, tr) for tau in (0.0, 0.01, 0.02) for tr in t]
+    one_by_one = [AnalyticForward().raw(*job) for job in jobs]
+    monkeypatch.setattr(fw, "SIM_THREADS", 3)
+    fwd = AnalyticForward()
+    together = fwd.raw_many(jobs + jobs[:2])  # repeated jobs: simulated once
+    assert fwd.n_sims == len(jobs)
+    for a, b in zip(together, one_by_one + one_by_one[:2]):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_residuals_and_forward_differences_in_normalized_parameters():
     """sensor_offset c = -1 + 2 z: the residuals move by 2 dz, the forward difference is 2
     (backward at the upper bound z = 1)."""

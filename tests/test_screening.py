@@ -40,3 +40,32 @@ def test_criteria_are_the_gaussian_aic_and_bic():
     assert bic == pytest.approx(10 * math.log(2.0) + 2 * math.log(10), rel=1e-14)
     aic0, bic0 = sc.criteria(0.0, 10, 0)  # a perfect fit: floored, finite
     assert aic0 == bic0 == pytest.approx(10 * math.log(1e-301), rel=1e-14)
+
+
+def test_gated_parameters_act_on_nothing_at_off_and_are_not_simulated():
+    """At the baseline (every effect off) the relaxation time of a unit of zero modulus, the
+    charging time of a leak of zero fraction and the energy scale of a softening of zero
+    depth act on nothing: their columns are zero without a simulation; once the gate is on,
+    they count again."""
+    from fitting.forward import fd_jacobian
+
+    names = ["creep", "voltage_lag", "leakage", "mullins"]
+    plist = fx.param_list(names)
+    z_off = np.array([p.z_of(p.off) for _, p in plist])
+    inert = sc.inert_columns(names, z_off)
+    assert [f"{plist[j][0]}.{plist[j][1].name}" for j in inert] == ["creep.tau", "leakage.tau", "mullins.m"]
+    z_on = z_off.copy()
+    z_on[0] = 0.1  # creep.mu on
+    assert [f"{plist[j][0]}.{plist[j][1].name}" for j in sc.inert_columns(names, z_on)] == ["leakage.tau", "mullins.m"]
+
+    asked = []
+
+    def resid_many(points):
+        asked.extend(points)
+        return [np.array([p.sum(), 2 * p.sum()]) for p in points]
+
+    J = fd_jacobian(resid_many, z_off, resid_many([z_off])[0], zero=inert)
+    assert len(asked) == 1 + len(plist) - len(inert)
+    assert np.all(J[:, inert] == 0.0)
+    np.testing.assert_allclose(np.delete(J, inert, axis=1), [[1.0], [2.0]] * np.ones((1, len(plist) - len(inert))),
+                               rtol=1e-9)
