@@ -22,6 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Mapping, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -82,9 +83,9 @@ class Forward:
         dispatches it asynchronously); returns what ``_finish`` turns into the output."""
         model_fx = {k: v for k, v in effects.items() if fx.get(k).kind == "model"}
         p = fx.apply_effects(self.pieces0, model_fx)
-        loading = self.drive(p.loading, trace)
         n = len(trace.time) - 1
         pad = max(self.pad_to or n, n)
+        loading = pad_knots(self.drive(p.loading, trace), n, pad)
         with self._count:
             self.n_sims += 1
         state0 = self._preloaded_state(p.model, loading, float(trace.time[0]))
@@ -185,6 +186,29 @@ def _command(loading: it.Loading, trace: Trace):
     if volt is None or not fx.slew_active(rate):
         return volt
     return loads.PiecewiseLinear(*fx.slew_limited(volt, float(rate), trace.time))
+
+
+def pad_knots(loading: it.Loading, n: int, pad: int) -> it.Loading:
+    """``loading`` with every piecewise-linear history (a trace's measured voltage or stretch,
+    a slewed command) extended past its last knot by knots holding its last value, to the
+    length it would have on ``pad`` steps instead of the trace's ``n`` (k n + 1 knots ->
+    k pad + 1; else the next power of two): the same values on the trace, and one compiled
+    program for every trace of a forward (a program per trace length otherwise)."""
+
+    def extend(h):
+        if not isinstance(h, loads.PiecewiseLinear):
+            return h
+        m = int(h.times.shape[0])
+        target = (m - 1) // n * pad + 1 if n > 0 and (m - 1) % n == 0 else 1 << (m - 1).bit_length()
+        if target <= m:
+            return h
+        t = np.asarray(h.times)
+        span = max(float(t[-1] - t[0]), 1.0)
+        extra = t[-1] + span * np.arange(1, target - m + 1)
+        return loads.PiecewiseLinear(np.concatenate([t, extra]),
+                                     jnp.concatenate([h.values, jnp.full(target - m, h.values[-1])]))
+
+    return jax.tree_util.tree_map(extend, loading, is_leaf=lambda x: isinstance(x, loads.PiecewiseLinear))
 
 
 def drive_voltage(loading: it.Loading, trace: Trace) -> it.Loading:

@@ -156,3 +156,23 @@ def test_rolled_experiment_gives_a_tube_forward_with_an_axial_preload():
     assert np.all(unit[:, 0, 1:] == 0.0)
     assert "prestress" in fx.names(fwd.pieces0) and "prestress" not in fx.names(fx.Pieces(None, None, fx.Sensor(), {}))
 
+
+
+def test_piecewise_linear_histories_are_padded_to_the_forwards_length_with_the_same_values():
+    """A trace of 4 steps padded to 10: its measured voltage (5 knots) gets 11, a slewed
+    command (4 knots per step, 17) gets 41, another history the next power of two; the
+    values on the trace are unchanged, the added knots hold the last value."""
+    from dejax import loads
+
+    t = np.linspace(0.0, 0.4, 5)
+    v = np.array([0.0, 1.0, 3.0, 2.0, 5.0])
+    fine = np.linspace(0.0, 0.4, 17)
+    loading = it.Loading(voltages=(loads.PiecewiseLinear(t, v), loads.PiecewiseLinear(fine, fine ** 2),
+                                   loads.PiecewiseLinear(np.arange(6.0), np.arange(6.0)), loads.Constant(2.0)))
+    out = fw.pad_knots(loading, 4, 10)
+    assert [h.times.shape[0] for h in out.voltages[:3]] == [11, 41, 8]
+    assert isinstance(out.voltages[3], loads.Constant)
+    tt = np.linspace(-0.1, 0.5, 61)
+    for a, b in zip(loading.voltages, out.voltages):
+        np.testing.assert_array_equal(np.asarray(a(tt)), np.asarray(b(tt)))
+    assert fw.pad_knots(loading, 4, 4).voltages[0].times.shape[0] == 5  # nothing to pad
