@@ -476,8 +476,9 @@ def _block_lam(state, t, args):
     lam = _newton(_block_resid, jnp.maximum(1.0, jnp.max(xi)), xi, t, args)
     if not isinstance(state, tuple):
         return lam
-    # Mullins: eta <= 1 only below lam_max, so the softened root lies between the virgin one
-    # (above) and lam_max, where eta = 1 (the residual bends sharply there: bracketed Newton)
+    # Mullins: eta < 1 only below lam_max, so the softened root lies between the virgin root
+    # (just computed: softer means stretched further) and lam_max, where eta = 1 (the residual
+    # bends sharply below lam_max: bracketed Newton)
     return _newton(_block_resid, jnp.stack([lam, jnp.maximum(state[1], lam)]), state, t, args)
 
 
