@@ -63,7 +63,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from . import effects as fx
-from .effect_fit import fit_effects
+from .effect_fit import covariance_factor, fit_effects
 from .forward import Forward, block_forward, fd_jacobian, forward_from_experiment, residuals_at, synthetic_traces
 from .gap import breakdown, estimate_noise, gap, rms, shrinkage_spread
 from .screening import criteria, screen
@@ -216,6 +216,7 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     before = breakdown(traces, [base_pred[tr.name] for tr in traces])
 
     results = []
+    jacobians = {}  # of the fitted candidates, at their optimum, on the fit traces
     scr = None
 
     def screened_only(g):
@@ -282,8 +283,9 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
     for i, g in enumerate(queue()):
         ts = _time.time()
         s0 = fwd.n_sims
-        vals, sd, sse, _ = fit_effects(fwd, list(g) + refit_fx, fit, start={**dict(start or {}), **base_fx},
-                                       max_iter=max_iter, z0=None if scr is None else scr[g].z)
+        vals, sd, sse, jacobians[g] = fit_effects(fwd, list(g) + refit_fx, fit,
+                                                  start={**dict(start or {}), **base_fx}, max_iter=max_iter,
+                                                  z0=None if scr is None else scr[g].z)
         k = sum(fx.get(name).n_params for name in g)
         aic, bic = criteria(sse, n, k)
         rh = rms(fwd.residuals([vals], hold)[0]) if hold else None
@@ -332,7 +334,8 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
             g0, g1 = d0["rms_gap"], after["features"][f]["rms_gap"]
             shrink["features"][f] = {"gap_before": g0, "gap_after": g1, "shrinkage": 1.0 - g1 / g0 if g0 > 0 else None}
         names = [*best.name.split("+"), *refit_fx]
-        jac, cov_sqrt = fitted_covariance(fwd, names, best.values, traces, n, best.sse_fit)
+        jac, cov_sqrt = fitted_covariance(fwd, names, best.values, traces, jacobians[tuple(best.name.split("+"))],
+                                          best.sse_fit)
         spread = shrinkage_spread(traces, [base_pred[tr.name] for tr in traces], [bp[tr.name] for tr in traces],
                                   sigma, jac, cov_sqrt)
         for role in ("fit", "holdout"):
@@ -345,24 +348,25 @@ def diagnose(fwd: Forward, traces: Sequence[Trace], candidates: Sequence[str] | 
                      [c.as_dict() for c in results], before, after, shrink, n, _time.time() - t0, preds, alts)
 
 
-def fitted_covariance(fwd: Forward, names: Sequence[str], values: Mapping, traces: Sequence[Trace], n_fit: int,
-                      sse: float) -> tuple[list[np.ndarray], np.ndarray]:
-    """The fitted effects ``names`` at ``values``: per trace the (n_i, k) Jacobian of the
-    prediction with respect to the normalized parameters z (forward differences, every trace,
-    k + 1 simulations of each), and S (k, k') with S S^T = s^2 (J^T J)^+ over the fit traces
-    (Gauss-Newton, s^2 = sse / (n_fit - k); directions the fit traces do not determine are
-    left out)."""
+def fitted_covariance(fwd: Forward, names: Sequence[str], values: Mapping, traces: Sequence[Trace],
+                      J_fit: np.ndarray, sse: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """The fitted effects ``names`` at ``values``, ``J_fit`` their fit's Jacobian on the fit
+    traces (``fit_effects``): per trace of ``traces`` the (n_i, k) Jacobian of the prediction
+    with respect to the normalized parameters z (the fit's rows; forward differences on the
+    other traces, k + 1 simulations of each), and S (k, k') with S S^T = s^2 (J^T J)^+
+    (``effect_fit.covariance_factor``, s^2 = sse / (n_fit - k))."""
     plist = fx.param_list(names)
     z = np.array([p.z_of(values.get(nm, {}).get(p.name, p.off)) for nm, p in plist])
-    resid_many = residuals_at(fwd, names, traces)
-    J = fd_jacobian(resid_many, z, resid_many([z])[0])  # d residual / dz = d prediction / dz
-    bounds = np.cumsum([0] + [len(tr) for tr in traces])
-    per_trace = [J[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
-    J_fit = np.concatenate([Jt for Jt, tr in zip(per_trace, traces) if tr.role == "fit"])
-    s2 = sse / max(n_fit - z.size, 1)
-    _, S, Vt = np.linalg.svd(J_fit, full_matrices=False)
-    keep = S > S[0] * 1e-12 if S.size and S[0] > 0 else np.zeros(S.shape, bool)
-    return per_trace, Vt[keep].T * (math.sqrt(s2) / S[keep])
+    hold = [tr for tr in traces if tr.role != "fit"]
+    J_hold = np.zeros((0, z.size))
+    if hold:
+        resid_many = residuals_at(fwd, names, hold)
+        J_hold = fd_jacobian(resid_many, z, resid_many([z])[0])  # d residual / dz = d prediction / dz
+    rows = {"fit": iter(np.split(J_fit, np.cumsum([len(tr) for tr in traces if tr.role == "fit"])[:-1])),
+            "hold": iter(np.split(J_hold, np.cumsum([len(tr) for tr in hold])[:-1]))}
+    per_trace = [next(rows["fit" if tr.role == "fit" else "hold"]) for tr in traces]
+    C, _ = covariance_factor(J_fit, sse / max(J_fit.shape[0] - z.size, 1))
+    return per_trace, C
 
 
 def at_bounds(values: Mapping) -> list[str]:

@@ -69,14 +69,22 @@ def fit_effects(fwd: Forward, names: Sequence[str], traces: Sequence[Trace], sta
     s2 = sse / max(n - k, 1)
     D = np.array([p.dx_dz(vals[nm][p.name]) for nm, p in plist])
     try:
-        _, S, Vt = np.linalg.svd(J, full_matrices=False)
-        keep = S > S[0] * 1e-12 if S.size and S[0] > 0 else np.zeros(S.shape, bool)
-        var_z = s2 * np.sum((Vt[keep] / S[keep, None]) ** 2, axis=0)
+        C, undetermined = covariance_factor(J, s2)
         # a parameter along a direction the data do not determine (J singular there): unbounded
-        var_z = np.where(np.sum(Vt[~keep] ** 2, axis=0) > 1e-6, np.inf, var_z)
-        sd = np.where(np.any(keep), np.sqrt(var_z) * np.abs(D), np.nan)
+        var_z = np.where(undetermined, np.inf, np.sum(C ** 2, axis=1))
+        sd = np.where(C.shape[1] > 0, np.sqrt(var_z) * np.abs(D), np.nan)
     except np.linalg.LinAlgError:
         sd = np.full(k, np.nan)
     for (nm, p), s_ in zip(plist, sd):
         stderr.setdefault(nm, {})[p.name] = float(s_)
     return vals, stderr, sse, J
+
+
+def covariance_factor(J: np.ndarray, s2: float) -> tuple[np.ndarray, np.ndarray]:
+    """C (k, k') with C C^T = s2 (J^T J)^+, the Gauss-Newton covariance of a least-squares fit
+    with Jacobian J (m, k), from the SVD of J (not of J^T J, whose condition number is
+    squared), singular values below 1e-12 of the largest left out; and (k,) whether each
+    parameter has a share in such an undetermined direction."""
+    _, S, Vt = np.linalg.svd(J, full_matrices=False)
+    keep = S > S[0] * 1e-12 if S.size and S[0] > 0 else np.zeros(S.shape, bool)
+    return Vt[keep].T * (np.sqrt(s2) / S[keep]), np.sum(Vt[~keep] ** 2, axis=0) > 1e-6

@@ -256,7 +256,8 @@ def fd_jacobian(resid_many, z, r, h: float = FD_STEP, overrides=None, zero=()) -
     of residuals`` evaluates the points together; the columns ``zero`` (indices known to
     leave the residuals as they are) are zeros, not evaluated."""
     steps = fd_steps(z, h, overrides)
-    cols = [j for j in range(z.size) if j not in set(zero)]
+    skip = set(zero)
+    cols = [j for j in range(z.size) if j not in skip]
     points = []
     for j in cols:
         zz = z.copy()
