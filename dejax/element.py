@@ -155,20 +155,32 @@ def face_load(X_e: jax.Array, dXdxi_e: jax.Array, axis: int, side: int, traction
       traction: (3,) nominal traction (force per reference area, Pa), constant.
       order: Gauss points per in-face direction.
     """
-    A = slot_transform(dXdxi_e)
-    e0 = reference_element_coordinates(X_e)
+    xi, weights, tangents = face_rule(axis, side, order)
+    return face_load_at(X_e, dXdxi_e, xi, weights, tangents, traction)
+
+
+def face_rule(axis: int, side: int, order: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss rule on the face xi_axis = side: points (order^2, 3), weights (order^2,) and
+    the two in-face parametric directions (2,) (int)."""
     p, w = np.polynomial.legendre.leggauss(int(order))
     a, b = [k for k in range(3) if k != axis]
-    load = jnp.zeros((N_SLOTS, 3))
-    for i, pi in enumerate(p):
-        for j, pj in enumerate(p):
-            xi = np.zeros(3)
-            xi[axis], xi[a], xi[b] = side, pi, pj
-            N = A.T @ parametric_shape_functions(jnp.asarray(xi))
-            J0 = e0.T @ (A.T @ parametric_shape_gradients(jnp.asarray(xi)))  # (3, 3) dX/dxi
-            dA = jnp.linalg.norm(jnp.cross(J0[:, a], J0[:, b]))
-            load = load + w[i] * w[j] * dA * jnp.outer(N, jnp.asarray(traction, dtype=float))
-    return load
+    xi = np.zeros((p.size, p.size, 3))
+    xi[..., axis] = side
+    xi[..., a], xi[..., b] = np.meshgrid(p, p, indexing="ij")
+    return xi.reshape(-1, 3), np.outer(w, w).reshape(-1), np.array([a, b])
+
+
+def face_load_at(X_e: jax.Array, dXdxi_e: jax.Array, xi, weights, tangents, traction) -> jax.Array:
+    """``face_load`` from a face rule (``face_rule``; arrays, so that every face shares one
+    traced program): (32, 3) N."""
+    A = slot_transform(dXdxi_e)
+    e0 = reference_element_coordinates(X_e)
+    xi = jnp.asarray(xi, dtype=float)
+    N = jax.vmap(parametric_shape_functions)(xi) @ A  # (n_points, 32): A^T N_parametric per point
+    J0 = jnp.einsum("ai,ba,pbk->pik", e0, A, jax.vmap(parametric_shape_gradients)(xi))  # (n_points, 3, 3) dX/dxi
+    J0t = jnp.take(J0, jnp.asarray(tangents), axis=2)  # (n_points, 3, 2) the in-face directions
+    dA = jnp.linalg.norm(jnp.cross(J0t[:, :, 0], J0t[:, :, 1]), axis=-1)
+    return jnp.einsum("p,pa,i->ai", jnp.asarray(weights) * dA, N, jnp.asarray(traction, dtype=float))
 
 
 def reference_element_coordinates(X_e: jax.Array) -> jax.Array:

@@ -18,6 +18,7 @@ with D the consistent tangent (viscous update included, see
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -460,16 +461,29 @@ def face_traction_load(mesh, node_set: str, traction, order: int = 3) -> jax.Arr
     on every element face whose four corner nodes lie in ``mesh.nodes(node_set)``."""
     on = np.zeros(mesh.n_nodes, dtype=bool)
     on[mesh.nodes(node_set)] = True
-    f = jnp.zeros((mesh.n_nodes, 4, 3))
-    found = False
-    for e, nodes in enumerate(np.asarray(mesh.conn)):
-        for (axis, side), corners in _FACES.items():
+    conn = np.asarray(mesh.conn)
+    faces = {}  # (axis, side) -> the elements with that face in the node set
+    for e, nodes in enumerate(conn):
+        for face, corners in _FACES.items():
             if on[nodes[list(corners)]].all():
-                found = True
-                fe = el.face_load(mesh.X[nodes], mesh.dXdxi[e], axis, side, traction, order)
-                f = f.at[nodes].add(fe.reshape(8, 4, 3))
-    if not found:
+                faces.setdefault(face, []).append(e)
+    if not faces:
         raise ValueError(f"no element face lies in node set {node_set!r}")
+    f = jnp.zeros(mesh.n_dofs)
+    for (axis, side), elems in faces.items():
+        xi, w, tangents = el.face_rule(axis, side, order)
+        f = f + _faces_load(mesh.X, mesh.dXdxi, conn[elems], np.asarray(elems), jnp.asarray(traction, dtype=float),
+                            xi, w, tangents)
+    return f
+
+
+@jax.jit
+def _faces_load(X, dXdxi, conn, elems, traction, xi, weights, tangents):
+    """(n_dofs,) ``element.face_load_at`` of one face rule on the elements ``elems`` (their
+    nodes ``conn``), scattered onto the mesh's coordinates: one compiled program for every
+    face (of a number of elements) rather than an eager operation per Gauss point."""
+    fe = jax.vmap(lambda Xe, De: el.face_load_at(Xe, De, xi, weights, tangents, traction))(X[conn], dXdxi[elems])
+    f = jnp.zeros((X.shape[0], 4, 3)).at[conn].add(fe.reshape(-1, 8, 4, 3))
     return f.reshape(-1)
 
 

@@ -73,6 +73,7 @@ from dejax.material import Material, equilibrium_energy
 
 __all__ = [
     "Param", "Effect", "Pieces", "Sensor", "EffectiveVoltage", "lowpass", "slew_limited", "slew_active", "SLEW_OFF",
+    "SlewSwitch", "slew_grid",
     "EFFECTS", "UNAVAILABLE", "get", "names", "applies", "augment_material", "make_pieces", "apply_effects",
     "from_experiment", "param_list", "values_at", "REFIT_PREFIX", "refit_names",
 ]
@@ -129,6 +130,28 @@ def slew_limited(history, rate: float, times, substeps: int = 16, knots: int = 4
     for i in range(1, phi.size):
         v[i] = v[i - 1] + min(max(phi[i] - v[i - 1], -step[i - 1]), step[i - 1])
     return fine[:: k // m], v[:: k // m]
+
+
+class SlewSwitch(eqx.Module):
+    """A commanded history ``base`` (t -> V) beside its slew-limited version ``limited`` (a
+    PiecewiseLinear on ``slew_grid``), used where ``on``: one pytree structure whether the
+    limit acts or not, so that the baseline and a slew-limited candidate share one compiled
+    simulation (``fitting.forward.drive_voltage``)."""
+
+    base: eqx.Module
+    limited: eqx.Module
+    on: jax.Array
+
+    def __call__(self, t):
+        return jnp.where(self.on, self.limited(t), self.base(t))
+
+
+def slew_grid(times, knots: int = 4) -> np.ndarray:
+    """The ``knots`` points per interval of ``times`` (plus the last time) on which
+    ``slew_limited`` returns its output: (knots (n - 1) + 1,) s."""
+    t = np.asarray(times, dtype=float)
+    frac = np.arange(knots) / knots
+    return np.concatenate([(t[:-1, None] + np.diff(t)[:, None] * frac[None, :]).ravel(), t[-1:]])
 
 
 def slew_active(rate) -> bool:

@@ -176,3 +176,45 @@ def test_piecewise_linear_histories_are_padded_to_the_forwards_length_with_the_s
     for a, b in zip(loading.voltages, out.voltages):
         np.testing.assert_array_equal(np.asarray(a(tt)), np.asarray(b(tt)))
     assert fw.pad_knots(loading, 4, 4).voltages[0].times.shape[0] == 5  # nothing to pad
+
+
+def test_baseline_slew_limited_and_preloaded_runs_share_one_compiled_simulation(caplog):
+    """The commanded voltage always travels beside its slew-limited version
+    (effects.SlewSwitch) and the start state is always given: the baseline, a slew-limited
+    candidate and a pre-stressed one (its start state from a static pre-load, a program of its
+    own) run one traced dynamic program (``jax_log_compiles`` names each tracing), and the switch leaves the
+    baseline's command as it was (off) or gives the slewed one (on)."""
+    import logging
+
+    import jax
+    import jax.numpy as jnp
+
+    from fitting.traces import Trace
+
+    fwd = fw.block_forward()
+    t = np.linspace(0.0, 0.01, 11)  # one cycle of a 3 kV, 100 Hz sine: steepest rate 9.4e5 V/s
+    tr = Trace(t, {"stretch": np.zeros_like(t)}, "fit", {"phi_max": 3e3, "freq": 100.0}, name="a",
+               loading={"kind": "sine", "phi_max": 3e3, "freq": 100.0}, response="stretch")
+    runs = ({}, {"amplifier_slew": {"rate": 2e5}}, {"prestress": {"s0": 200.0}})
+    prev = jax.config.jax_log_compiles
+    jax.config.update("jax_log_compiles", True)
+    try:
+        with caplog.at_level(logging.WARNING):
+            outs = [fwd.raw(e, tr) for e in runs]
+    finally:
+        jax.config.update("jax_log_compiles", prev)
+    traced = [r for r in caplog.records if "_simulate_jit" in r.getMessage() and "tracing" in r.getMessage().lower()]
+    # one dynamic program for the three runs, one for the static pre-load (before: four)
+    assert len(traced) <= 2, [r.getMessage() for r in traced]
+    assert fwd.n_sims == 3 and all(np.all(np.isfinite(y)) for y in outs)
+    assert np.max(np.abs(outs[1] - outs[0])) > 0 and np.max(np.abs(outs[2] - outs[0])) > 0
+    # the switch: off, the command itself; on, the slew-limited history
+    cmd = tr.voltage_history
+    off = fw._command(fwd.pieces0.loading, tr)
+    tt = jnp.linspace(0.0, 0.01, 41)
+    np.testing.assert_array_equal(np.asarray(off(tt)), np.asarray(cmd(tt)))
+    slewed = fx.apply_effects(fwd.pieces0, {"amplifier_slew": {"rate": 2e5}}).loading
+    on = fw._command(slewed, tr)
+    grid, v = fx.slew_limited(cmd, 2e5, tr.time)
+    np.testing.assert_allclose(np.asarray(on(jnp.asarray(grid))), v, rtol=0, atol=1e-9)
+    assert off.limited.times.shape == on.limited.times.shape
