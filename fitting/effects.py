@@ -122,7 +122,7 @@ def slew_limited(history, rate: float, times, substeps: int = 16, knots: int = 4
     m = max(min(int(knots), k), 1)
     while k % m:
         k += 1
-    fine = np.concatenate([np.linspace(a, b, k + 1)[:-1] for a, b in zip(t[:-1], t[1:])] + [t[-1:]])
+    fine = slew_grid(t, k)
     phi = np.asarray(history(jnp.asarray(fine)), dtype=float)
     v = np.empty_like(phi)
     v[0] = phi[0]

@@ -95,8 +95,9 @@ class Forward:
         with self._count:
             self.n_sims += 1
         state0 = self._start_state(p.model, loading, float(trace.time[0]))
-        return p.model, loading, pad, it.simulate(p.model, loading, trace.time, self.problem.output_fn, self.scheme,
-                                                  self.newton, state0=state0, pad_to=pad, control=None)  # fixed steps
+        return p.model, loading, pad, state0, it.simulate(p.model, loading, trace.time, self.problem.output_fn,
+                                                          self.scheme, self.newton, state0=state0, pad_to=pad,
+                                                          control=None)  # fixed steps
 
     def _start_state(self, model, loading, t0: float):
         """The state at t0: with a dead load (pre-stress), static equilibrium under it, the
@@ -112,15 +113,14 @@ class Forward:
             st = pre.final  # its element pressures belong to the pre-load: keep them (at rest, t = t0)
             z = jnp.zeros_like(st.q)
             st = eqx.tree_at(lambda s: (s.t, s.v, s.qdd, s.a), st, (jnp.asarray(t0, dtype=float), z, z, z))
-        return jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=jnp.asarray(a).dtype), st)
+        return jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=a.dtype), st)  # dtype given: not weakly typed
 
     def _finish(self, effects: Mapping, trace: Trace, launched) -> np.ndarray:
-        model, loading, pad, sol = launched
+        model, loading, pad, state0, sol = launched
         if not sol.ok and self.newton.reuse and int(sol.status) == int(it.Status.NEWTON_FAILED):
             full = dataclasses.replace(self.newton, reuse=False)
-            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full,
-                              state0=self._start_state(model, loading, float(trace.time[0])), pad_to=pad,
-                              control=None)
+            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full, state0=state0,
+                              pad_to=pad, control=None)
             with self._count:
                 self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)
@@ -196,7 +196,7 @@ def _command(loading: it.Loading, trace: Trace):
     volt = trace.voltage_history
     if volt is None:
         return None
-    rate = getattr(loading.voltages[0], "slew_rate", fx.SLEW_OFF) if loading.voltages else fx.SLEW_OFF
+    rate = getattr(loading.voltages[0], "slew_rate", fx.SLEW_OFF)
     if fx.slew_active(rate):
         return fx.SlewSwitch(volt, loads.PiecewiseLinear(*fx.slew_limited(volt, float(rate), trace.time)),
                              jnp.asarray(True))
