@@ -32,6 +32,7 @@ VARIANTS = {
     "dejax": {KEY: "LIBRARY_FUSION_TYPE_DOT"},
     "xla-default": {KEY: "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"},
     "no-ynn": {KEY: ""},
+    "dejax-loops": {KEY: "LIBRARY_FUSION_TYPE_DOT", "xla_cpu_use_fusion_emitters": False},
 }
 
 
@@ -70,7 +71,12 @@ def main():
     first, second = jnp.asarray(times[1:n + 1]), jnp.asarray(times[n + 1:2 * n + 1])
     active = jnp.ones(n, bool)
     lowered = run.lower(m, load, carry, first, active)
-    runs = {k: lowered.compile(compiler_options=o) for k, o in VARIANTS.items()}
+    runs, compile_s = {}, {}
+    for k, o in VARIANTS.items():
+        tic = time.perf_counter()
+        runs[k] = lowered.compile(compiler_options=o)
+        compile_s[k] = time.perf_counter() - tic
+    print("compile of the step scan (s): " + "   ".join(f"{k} {v:.1f}" for k, v in compile_s.items()), flush=True)
     carry, _ = runs["dejax"](m, load, carry, first, active)  # a loaded state
     state = carry.state
     ctx = it._StepContext(state=state, t1=state.t + dt, phi1=load.phi(state.t + dt), u1=jnp.zeros(0),

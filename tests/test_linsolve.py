@@ -1,4 +1,5 @@
 """The sparse direct solver path agrees with the dense one, forward and in derivatives."""
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -6,6 +7,10 @@ import pytest
 
 from dejax import integrate as it
 from dejax import linsolve, loads, scenarios
+from dejax import model as mdl
+
+# one compiled program, not hundreds of eagerly dispatched operations (20-30 s each call)
+element_tangents = eqx.filter_jit(mdl.element_tangents)
 
 
 @pytest.fixture(scope="module")
@@ -17,12 +22,10 @@ def problem():
 def test_sparse_solve_equals_dense_and_transposes(volumetric):
     """Both solvers are backward stable on the block's iteration matrix (residual at
     round-off) and agree to within its condition number times the machine epsilon."""
-    from dejax import model as mdl
-
     m = scenarios.block(phi_max=12e3, shape=(1, 1, 1), t_ramp=0.05, volumetric=volumetric).model
     E = mdl.nominal_field(m, jnp.array([8e3]))
     q = m.q0 + 1e-5 * jax.random.normal(jax.random.PRNGKey(1), m.q0.shape)
-    _, Ke, _ = mdl.element_tangents(m, q, E, mdl.initial_viscous_state(m), 1e-3)
+    _, Ke, _ = element_tangents(m, q, E, mdl.initial_viscous_state(m), 1e-3)
     Ke = Ke + 1e3 * mdl.mass_elements(m)
     K = np.asarray(mdl.assemble_dense(m, Ke))
     b = jax.random.normal(jax.random.PRNGKey(2), (m.structure.n_free,))
@@ -108,13 +111,11 @@ def test_sparse_factorizations_through_the_callback_are_freed():
     """Regression: every factorization made through the host callback stayed resident
     (~30 MB each here; 22 GB on the paper's torsional strip). 30 factorizations of the
     24x4x2 strip's tangent (cache of 4) must not grow the process by more than a few."""
-    from dejax import model as mdl
-
     if _rss_bytes() is None:
         pytest.skip("needs /proc/self/status")
     m = scenarios.torsional(0.5, 1.0, viscous=False, shape=(24, 4, 2)).model
     E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
-    Ke = mdl.element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1.0, mdl.initial_pressure(m))[1]
+    Ke = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1.0, mdl.initial_pressure(m))[1]
     solver = linsolve.SparseSolver()
     values = solver.factor(m, Ke)
     b = jnp.asarray(np.random.default_rng(0).standard_normal(m.structure.n_free))
@@ -131,8 +132,6 @@ def test_every_solver_offers_the_linear_solver_interface():
     """choose_solver returns LinearSolver modules: abstract base, equal solvers hash equal
     (one compiled stepper), and ``empty`` has the structure of ``factor`` (carried through
     lax.scan in its place)."""
-    from dejax import model as mdl
-
     with pytest.raises(TypeError, match="abstract"):
         linsolve.LinearSolver()
 
@@ -143,7 +142,7 @@ def test_every_solver_offers_the_linear_solver_interface():
     with pytest.raises(TypeError, match="abstract"):
         Partial()
     m = scenarios.block(shape=(1, 1, 1)).model
-    Ke = mdl.element_tangents(m, m.q0, mdl.nominal_field(m, jnp.zeros(1)), mdl.initial_viscous_state(m), 1e-3)[1]
+    Ke = element_tangents(m, m.q0, mdl.nominal_field(m, jnp.zeros(1)), mdl.initial_viscous_state(m), 1e-3)[1]
     for which in ("auto", "dense", "sparse", "pardiso"):
         solver = linsolve.choose_solver(m.structure, which)
         assert isinstance(solver, linsolve.LinearSolver)
