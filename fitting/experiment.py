@@ -1,11 +1,17 @@
-"""Forward models for fitting, built from scenarios (the ``dejax fit`` verb is in ``fitting.cli``).
+"""The problem of an experiment file, and the forward models of fits (the ``dejax fit`` verb
+is in ``fitting.cli``).
 
+* ``experiment_problem(scenario, geometry, material, voltage, stretch)``: the scenario's
+  Problem from an experiment's ``[geometry]``: the one builder behind ``dejax run``, the
+  forwards of ``dejax fit`` (below) and the diagnosis's (``fitting.forward``).
 * ``UniaxialForward``: stretch-controlled uniaxial test (``dejax.scenarios.uniaxial``,
   1 element by default); ``data`` = dict(times (N+1,), knots_t, knots_lam, t_obs,
   [volt_t, volt_v]); predicts the nominal stress at ``t_obs``.
 * ``BlockForward``: the DE block under a voltage history; predicts
   ``lateral_stretch`` (or any block output) at ``t_obs``.
 * ``RolledForward``: the rolled tube (small mesh); predicts x_P (m) at ``t_obs``.
+  The three share one protocol: ``forward(params, data)`` -> the predicted response at
+  ``data["t_obs"]``, differentiable in the material parameters ``params``.
 * ``uniaxial_target(...)``, ``hossain_target(peak, rate, ...)``: traces for fitting.fit (a
   ``fitting.traces.Trace`` with its response, the forward's ``data`` and plot labels).
 * ``from_experiment(exp)``: (forward, params0, free, bounds, targets, holdout, options)
@@ -20,7 +26,7 @@ T / N varies between traces) so that compiled code is shared.
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -35,7 +41,8 @@ from .fit import fit
 from .traces import Trace
 from .units import CHANNELS, SI_UNIT
 
-__all__ = ["Interp", "UniaxialForward", "BlockForward", "RolledForward", "uniaxial_target", "hossain_target",
+__all__ = ["Interp", "experiment_problem", "DEFAULT_MESH", "SCENARIO_OUTPUT", "UniaxialForward", "BlockForward",
+           "RolledForward", "uniaxial_target", "hossain_target",
            "from_experiment", "run_experiment", "experiment_run", "RunSetup"]
 
 
@@ -49,6 +56,46 @@ class Interp(eqx.Module):
         return jnp.interp(jnp.asarray(t, dtype=float), self.times, self.values)
 
 
+DEFAULT_MESH = {"block": (1, 1, 1), "rolled": (1, 4, 1), "torsional": (48, 8, 2), "uniaxial": (1, 1, 1)}
+"""Mesh (elements per direction) of an experiment's scenario where ``[geometry] mesh`` is absent."""
+SCENARIO_OUTPUT = {"block": "lateral_stretch", "rolled": "x_P", "torsional": "twist_angle", "uniaxial": "stress"}
+"""Scenario -> the output ``dejax run`` of an experiment reports at the end and a diagnosis
+compares with the traces' response."""
+
+
+def experiment_problem(scenario: str, geometry, material, voltage=None, stretch=None, mesh=None,
+                       **common) -> scenarios.Problem:
+    """The Problem an experiment file describes: what ``dejax run``, ``dejax fit`` and
+    ``dejax diagnose`` simulate, built in this one place.
+
+    scenario: "block", "rolled", "torsional" or "uniaxial"; geometry: the ``[geometry]``
+    keys (``fitting.schema.GEOMETRY_KEYS``; lengths in m, twist in turns, rolled ``probe``
+    "P_outer"/"outer" for the top face's outer edge, else P, its inner edge); material: a
+    ``Material`` (its leaves may be traced: fits differentiate through them); voltage: the
+    voltage history (t -> V; None: none); stretch: the uniaxial test's prescribed stretch
+    history; mesh: the mesh where the geometry names none (default ``DEFAULT_MESH``);
+    common: the builders' solver keywords (gauss_order, damping, volumetric).
+    ValueError for an unknown scenario."""
+    g = geometry
+    shape = tuple(int(n) for n in g.get("mesh", mesh or DEFAULT_MESH.get(scenario, ())))
+    if scenario == "block":
+        return scenarios.block(L=float(g.get("L", g.get("lx", 1e-3))), shape=shape, material=material,
+                               voltage=voltage, **common)
+    if scenario == "rolled":
+        point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"
+        return scenarios.rolled(material, h=float(g["h"]), r=float(g["r"]), L=float(g["L"]), shape=shape, point=point,
+                                voltage=voltage, **common)
+    if scenario == "torsional":
+        h = float(g["h"])
+        p = scenarios.torsional(material=material, thickness=h, length_ratio=float(g["L"]) / h,
+                                width_ratio=float(g["W"]) / h, turns=float(g.get("twist", 1.0)), shape=shape, **common)
+        return dataclasses.replace(p, loading=it.Loading(voltages=(voltage,)))
+    if scenario == "uniaxial":
+        return scenarios.uniaxial(stretch, material, voltage=voltage, lx=float(g.get("L", 1e-3)),
+                                  ly=float(g.get("W", 1e-3)), lz=float(g.get("h", 1e-3)), shape=shape, **common)
+    raise ValueError(f"unknown scenario {scenario!r} (known: {', '.join(DEFAULT_MESH)})")
+
+
 FIT_STEP_CONTROL = None
 """Forward models of fits take the user's steps without cut-back: a differentiated run
 with cut-back replays its sub-steps (a second forward pass and a second compiled
@@ -60,8 +107,36 @@ program), which fits, with hundreds of gradient evaluations, cannot afford yet."
 
 
 class _AtObservations(eqx.Module):
-    """A forward of fits: its ``simulate(params, data)`` (a dejax Solution) read at the
-    observation times ``data["t_obs"]`` (its output ``output``; NaN where the simulation failed)."""
+    """A forward of fits: the Problem of ``experiment_problem`` for ``scenario`` with the
+    material of ``params`` (``parameters.from_flat``; damping ``c_d``) and the histories of
+    ``data``, simulated on ``data["times"]`` and read at the observation times
+    ``data["t_obs"]`` (its output ``output``; NaN where the simulation failed).
+    Subclasses name the scenario and give ``geometry()``; ``newton()``: the Newton options
+    (default ``integrate.NewtonOptions()``)."""
+
+    scenario: ClassVar[str]
+
+    def geometry(self) -> dict:
+        raise NotImplementedError
+
+    def newton(self) -> it.NewtonOptions:
+        return it.NewtonOptions()
+
+    def voltage_history(self, data):
+        """The voltage history of ``data`` (knots ``volt_t``, ``volt_v``)."""
+        return Interp(data["volt_t"], data["volt_v"])
+
+    def problem(self, params, data):
+        volt = self.voltage_history(data)
+        stretch = Interp(data["knots_t"], data["knots_lam"]) if "knots_t" in data else None
+        return experiment_problem(self.scenario, self.geometry(), parameters.from_flat(params, self.n_units),
+                                  voltage=volt, stretch=stretch, damping=params.get("c_d", 0.0))
+
+    def simulate(self, params, data):
+        p = self.problem(params, data)
+        scheme = p.scheme() if p.quasi_static else it.GeneralizedAlpha(self.rho_inf)
+        return it.simulate(p.model, p.loading, data["times"], p.output_fn, scheme, self.newton(),
+                           control=FIT_STEP_CONTROL)
 
     def __call__(self, params, data):
         sol = self.simulate(params, data)
@@ -78,6 +153,7 @@ class UniaxialForward(_AtObservations):
     residual ``tol``, up to 40 iterations.
     """
 
+    scenario: ClassVar[str] = "uniaxial"
     n_units: int = eqx.field(static=True, converter=int)
     voltage: bool = eqx.field(static=True, default=False, converter=bool)
     lz: float = eqx.field(static=True, default=1e-3, converter=float)
@@ -86,39 +162,34 @@ class UniaxialForward(_AtObservations):
     max_iter: int = eqx.field(static=True, default=40, converter=int)
     reuse: bool = eqx.field(static=True, default=False, converter=bool)
 
-    def problem(self, params, data):
-        mat = parameters.from_flat(params, self.n_units)
-        volt = Interp(data["volt_t"], data["volt_v"]) if self.voltage else None
-        p = scenarios.uniaxial(Interp(data["knots_t"], data["knots_lam"]), mat, voltage=volt, lz=self.lz,
-                               damping=params.get("c_d", 0.0))
-        return p
+    def geometry(self):
+        return {"h": self.lz}
 
-    def simulate(self, params, data):
-        p = self.problem(params, data)
-        return it.simulate(p.model, p.loading, data["times"], p.output_fn, p.scheme(),
-                           it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse),
-                           control=FIT_STEP_CONTROL)
+    def voltage_history(self, data):
+        return Interp(data["volt_t"], data["volt_v"]) if self.voltage else None
+
+    def newton(self):
+        return it.NewtonOptions(tol=self.tol, max_iter=self.max_iter, reuse=self.reuse)
 
 
 class BlockForward(_AtObservations):
     """An output of the DE block (default lateral_stretch) under a voltage history."""
 
+    scenario: ClassVar[str] = "block"
     n_units: int = eqx.field(static=True, converter=int)
     L: float = eqx.field(static=True, default=1e-3, converter=float)
     output: str = eqx.field(static=True, default="lateral_stretch")
     rho_inf: float = eqx.field(static=True, default=0.8, converter=float)
 
-    def simulate(self, params, data):
-        mat = parameters.from_flat(params, self.n_units)
-        p = scenarios.block(L=self.L, material=mat, voltage=Interp(data["volt_t"], data["volt_v"]),
-                            damping=params.get("c_d", 0.0))
-        return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
-                           control=FIT_STEP_CONTROL)
+    def geometry(self):
+        return {"L": self.L}
 
 
 class RolledForward(_AtObservations):
-    """Axial displacement x_P (m) of the rolled tube under a voltage history."""
+    """Axial displacement x_P (m) of the rolled tube under a voltage history (``probe``
+    "P_outer": the top face's outer edge, else its inner edge P)."""
 
+    scenario: ClassVar[str] = "rolled"
     n_units: int = eqx.field(static=True, converter=int)
     h: float = eqx.field(static=True, converter=float)
     r: float = eqx.field(static=True, converter=float)
@@ -126,13 +197,10 @@ class RolledForward(_AtObservations):
     shape: tuple = eqx.field(static=True, default=(1, 4, 1), converter=lambda s: tuple(int(n) for n in s))
     rho_inf: float = eqx.field(static=True, default=0.8, converter=float)
     output: str = eqx.field(static=True, default="x_P")
+    probe: str = eqx.field(static=True, default="P")
 
-    def simulate(self, params, data):
-        mat = parameters.from_flat(params, self.n_units)
-        p = scenarios.rolled(mat, h=self.h, r=self.r, L=self.L, shape=self.shape,
-                             voltage=Interp(data["volt_t"], data["volt_v"]), damping=params.get("c_d", 0.0))
-        return it.simulate(p.model, p.loading, data["times"], p.output_fn, it.GeneralizedAlpha(self.rho_inf),
-                           control=FIT_STEP_CONTROL)
+    def geometry(self):
+        return {"h": self.h, "r": self.r, "L": self.L, "mesh": self.shape, "probe": self.probe}
 
 
 # ----------------------------------------------------------------------------- targets
@@ -332,8 +400,8 @@ def _block_forward(exp):
 
 def _rolled_forward(exp):
     g = exp.geometry
-    return RolledForward(exp.n_units, g["h"], g["r"], g["L"], shape=tuple(g.get("mesh", (1, 4, 1))),
-                         rho_inf=float(exp.solver.get("rho_inf", 0.8)))
+    return RolledForward(exp.n_units, g["h"], g["r"], g["L"], shape=tuple(g.get("mesh", DEFAULT_MESH["rolled"])),
+                         rho_inf=float(exp.solver.get("rho_inf", 0.8)), probe=str(g.get("probe", "P")))
 
 
 FIT_TARGETS = {
@@ -388,8 +456,7 @@ class RunSetup(NamedTuple):
     output: str
 
 
-RUN_OUTPUT = {"block": "lateral_stretch", "rolled": "x_P", "torsional": "twist_angle", "uniaxial": "stress"}
-"""Scenario -> the output ``dejax run`` of an experiment reports at the end."""
+
 RUN_STEPS = 200
 """Default steps of a voltage-driven run without ``[solver] dt`` (as ``dejax fit``)."""
 
@@ -410,29 +477,6 @@ def _trace_geometry(exp, tr) -> dict:
     from .schema import GEOMETRY_KEYS
 
     return {**exp.geometry, **{k: v for k, v in tr.conditions.items() if k in GEOMETRY_KEYS[exp.scenario]}}
-
-
-def _scenario_problem(exp, tr, g, volt, common):
-    """The scenario's Problem with the experiment's material and geometry ``g`` under the
-    voltage history ``volt`` (and, for uniaxial, the trace's stretch)."""
-    material = Material(**exp.material_kwargs())  # with the optional keys (Mullins softening)
-    if exp.scenario == "block":
-        return scenarios.block(L=float(g.get("L", g.get("lx", 1e-3))), shape=tuple(g.get("mesh", (1, 1, 1))),
-                               material=material, voltage=volt, **common)
-    if exp.scenario == "rolled":
-        point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"
-        return scenarios.rolled(material, h=g["h"], r=g["r"], L=g["L"], shape=tuple(g.get("mesh", (1, 4, 1))),
-                                point=point, voltage=volt, **common)
-    if exp.scenario == "torsional":
-        h = float(g["h"])
-        p = scenarios.torsional(material=material, thickness=h, length_ratio=g["L"] / h, width_ratio=g["W"] / h,
-                                turns=float(g.get("twist", 1.0)), shape=tuple(g.get("mesh", (48, 8, 2))), **common)
-        return dataclasses.replace(p, loading=it.Loading(voltages=(volt,)))
-    if exp.scenario == "uniaxial":
-        return scenarios.uniaxial(loads.PiecewiseLinear(tr.time, tr["stretch"]), material, voltage=volt,
-                                  lx=float(g.get("L", 1e-3)), ly=float(g.get("W", 1e-3)), lz=float(g.get("h", 1e-3)),
-                                  shape=tuple(g.get("mesh", (1, 1, 1))), **common)
-    raise ValueError(f"{exp.path}: dejax run does not support scenario {exp.scenario!r}")
 
 
 def _run_params(problem, exp, tr, volt) -> dict:
@@ -462,9 +506,13 @@ def experiment_run(exp, trace: str | None = None, dt=None, dt_min=None, rho_inf=
     common = dict(gauss_order=int(gauss_order or s.get("gauss_order", 3)),
                   damping=float(damping if damping is not None else s.get("damping", 0.0)), volumetric=volumetric)
     volt = tr.voltage_history
-    problem = _scenario_problem(exp, tr, _trace_geometry(exp, tr), volt, common)
+    if exp.scenario not in SCENARIO_OUTPUT:
+        raise ValueError(f"{exp.path}: dejax run does not support scenario {exp.scenario!r}")
+    stretch = loads.PiecewiseLinear(tr.time, tr["stretch"]) if exp.scenario == "uniaxial" else None
+    material = Material(**exp.material_kwargs())  # with the optional keys (Mullins softening)
+    problem = experiment_problem(exp.scenario, _trace_geometry(exp, tr), material, volt, stretch, **common)
     problem = dataclasses.replace(problem, params=_run_params(problem, exp, tr, volt))
     settings = dict(dt=float(dt or s.get("dt", t_end / steps)), dt_min=float(dt_min or s.get("dt_min", 1e-6)),
                     rho_inf=float(rho_inf if rho_inf is not None else s.get("rho_inf", problem.rho_inf)),
                     newton_tol=float(newton_tol or s.get("newton_tol", 1e-6)))
-    return RunSetup(problem, tr.name, t_end, settings, RUN_OUTPUT[exp.scenario])
+    return RunSetup(problem, tr.name, t_end, settings, SCENARIO_OUTPUT[exp.scenario])

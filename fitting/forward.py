@@ -30,6 +30,7 @@ from dejax import integrate as it
 from dejax import loads
 
 from . import effects as fx
+from .experiment import SCENARIO_OUTPUT, experiment_problem
 from .traces import Trace
 
 __all__ = ["Forward", "FD_STEP", "residuals_at", "fd_jacobian", "forward_from_experiment", "block_forward",
@@ -288,6 +289,11 @@ def fd_jacobian(resid_many, z, r, h: float = FD_STEP, overrides=None, zero=()) -
 # ----------------------------------------------------------------------------- experiment files
 
 
+DIAGNOSE_MESH = {"torsional": (12, 2, 2)}
+"""Meshes of the diagnosis where an experiment names none and differs from
+``experiment.DEFAULT_MESH`` (the torsional strip: coarser, for the many simulations of a diagnosis)."""
+
+
 def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
     """Forward model and traces (the experiment's, with their response channel) of an
     Experiment of any scenario, each simulated on its trace's time grid:
@@ -300,7 +306,6 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
       W, twist (turns), mesh (default 12 x 2 x 2));
     * uniaxial: response ``stress`` (nominal, Pa) under the trace's measured ``stretch``
       (quasi-static), with its voltage where the experiment has one (geometry L, W, h)."""
-    from dejax import scenarios as sc
     from dejax.material import Material
 
     channels = {"block": ("stretch", "displacement"), "rolled": ("displacement", "x_P"),
@@ -329,31 +334,13 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
     pad = max(len(t) for t in traces) - 1
     volts = [tr.voltage_history for tr in traces]
     common = dict(gauss_order=int(exp.solver.get("gauss_order", 3)), damping=float(exp.solver.get("damping", 0.0)))
-    transform, drive = None, None
-    if exp.scenario == "block":
+    volt = next((v for v in volts if v is not None), None)
+    stretch = loads.PiecewiseLinear(traces[0].time, traces[0].channels["stretch"]) if uniaxial else None
+    prob = experiment_problem(exp.scenario, g, mat, volt, stretch, mesh=DIAGNOSE_MESH.get(exp.scenario), **common)
+    output, transform, drive = SCENARIO_OUTPUT[exp.scenario], None, (drive_stretch if uniaxial else None)
+    if exp.scenario == "block" and channel == "displacement":
         L = float(g.get("L", g.get("lx", 1e-3)))
-        prob = sc.block(L=L, shape=tuple(g.get("mesh", (1, 1, 1))), material=mat, voltage=volts[0], **common)
-        output = "lateral_stretch"
-        transform = None if channel == "stretch" else (lambda y, L=L: (y - 1.0) * L)
-    elif exp.scenario == "rolled":
-        point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"  # as `dejax run` reads it
-        prob = sc.rolled(mat, h=float(g["h"]), r=float(g["r"]), L=float(g["L"]), shape=tuple(g.get("mesh", (1, 4, 1))),
-                         point=point, voltage=volts[0], **common)
-        output = "x_P"
-    elif exp.scenario == "torsional":
-        h = float(g["h"])
-        prob = sc.torsional(material=mat, thickness=h, length_ratio=float(g["L"]) / h, width_ratio=float(g["W"]) / h,
-                            turns=float(g.get("twist", 1.0)), shape=tuple(g.get("mesh", (12, 2, 2))), **common)
-        prob = dataclasses.replace(prob, loading=it.Loading(voltages=(volts[0],)))
-        output = "twist_angle"
-    else:
-        tr0 = traces[0]
-        has_voltage = any(v is not None for v in volts)
-        prob = sc.uniaxial(loads.PiecewiseLinear(tr0.time, tr0.channels["stretch"]), mat,
-                           voltage=(next(v for v in volts if v is not None) if has_voltage else None),
-                           lx=float(g.get("L", 1e-3)), ly=float(g.get("W", 1e-3)), lz=float(g.get("h", 1e-3)),
-                           shape=tuple(g.get("mesh", (1, 1, 1))), **common)
-        output, drive = "stress", drive_stretch
+        transform = lambda y, L=L: (y - 1.0) * L  # noqa: E731
     fwd = Forward(prob, output, rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform, drive=drive)
     return fwd, traces
 

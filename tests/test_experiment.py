@@ -1,6 +1,7 @@
 """Forward models of fits from experiment files (fitting.experiment.from_experiment): which
 forward each scenario gets, its targets, one number of steps per forward (one compiled
-simulation), and the errors for what dejax fit cannot do. Nothing is simulated here."""
+simulation), the errors for what dejax fit cannot do, and the one problem builder of run, fit
+and diagnose. Nothing is simulated here."""
 import dataclasses
 from pathlib import Path
 
@@ -177,3 +178,31 @@ def test_run_of_an_unknown_trace_or_one_without_time():
     timeless = dataclasses.replace(exp, traces=(dataclasses.replace(exp.traces[0], time=None),))
     with pytest.raises(ValueError, match="has no time column; dejax run needs one"):
         E.experiment_run(timeless)
+
+
+def test_run_fit_and_diagnose_build_one_problem():
+    """``experiment_problem`` is the one builder: the run of an experiment, its fit forward
+    and its diagnosis forward simulate the same tube with the same probe (the outer edge
+    when [geometry] probe = "outer"; the fit forward used to ignore the key)."""
+    import jax.numpy as jnp
+
+    from dejax import parameters
+    from fitting.forward import forward_from_experiment
+
+    tube = load_experiment(EXAMPLES / "tube_example.toml")
+    outer = dataclasses.replace(tube, geometry={**tube.geometry, "probe": "outer"})
+    fwd, params0, *_, targets, _, _ = E.from_experiment(outer, n_steps=5)
+    assert fwd.probe == "outer"
+    problems = {
+        "run": E.experiment_run(outer).problem,
+        "fit": fwd.problem({k: jnp.asarray(v) for k, v in params0.items()}, targets[0].data),
+        "diagnose": forward_from_experiment(outer)[0].problem,
+    }
+    inner = E.experiment_run(tube).problem
+    for name, p in problems.items():
+        assert p.output_fn == problems["run"].output_fn, name
+        assert p.model.structure.n_free == inner.model.structure.n_free, name
+    assert problems["run"].output_fn != inner.output_fn  # the probe moved to the outer edge
+    mat = parameters.from_flat({k: jnp.asarray(v) for k, v in params0.items()}, fwd.n_units)
+    with pytest.raises(ValueError, match="unknown scenario 'tubular'"):
+        E.experiment_problem("tubular", tube.geometry, mat)
