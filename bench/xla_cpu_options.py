@@ -9,7 +9,9 @@ and ``--steps`` time steps of the rolled tube (Model IV, 50 kV, 30 Hz, dt = 5e-4
 R1 loading) from a state part-way into the run.
 
 Variants: "dejax" (what importing dejax sets, ``dejax.CPU_XLA_FLAGS``), "xla-default"
-(XLA's own YNNPACK fusions: elementwise and reductions as well), "no-ynn" (none).
+(XLA's own YNNPACK fusions: elementwise and reductions as well), "no-ynn" (none),
+"emitters" (dejax's, with XLA:CPU's MLIR fusion emitters back on). Compilation times of
+the step scan are printed too.
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ VARIANTS = {
     "dejax": {KEY: "LIBRARY_FUSION_TYPE_DOT"},
     "xla-default": {KEY: "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"},
     "no-ynn": {KEY: ""},
-    "dejax-loops": {KEY: "LIBRARY_FUSION_TYPE_DOT", "xla_cpu_use_fusion_emitters": False},
+    "emitters": {KEY: "LIBRARY_FUSION_TYPE_DOT", "xla_cpu_use_fusion_emitters": True},
 }
 
 
