@@ -456,7 +456,6 @@ class RunSetup(NamedTuple):
     output: str
 
 
-
 RUN_STEPS = 200
 """Default steps of a voltage-driven run without ``[solver] dt`` (as ``dejax fit``)."""
 

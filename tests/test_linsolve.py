@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dejax import integrate as it
-from dejax import linsolve, loads, scenarios
+from dejax import linsolve, scenarios
 from dejax import model as mdl
 
 # one compiled program, not hundreds of eagerly dispatched operations (20-30 s each call)
