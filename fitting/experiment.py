@@ -41,7 +41,7 @@ from .fit import fit
 from .traces import Trace
 from .units import CHANNELS, SI_UNIT
 
-__all__ = ["Interp", "experiment_problem", "DEFAULT_MESH", "SCENARIO_OUTPUT", "UniaxialForward", "BlockForward",
+__all__ = ["Interp", "experiment_problem", "block_length", "DEFAULT_MESH", "SCENARIO_OUTPUT", "UniaxialForward", "BlockForward",
            "RolledForward", "uniaxial_target", "hossain_target",
            "from_experiment", "run_experiment", "experiment_run", "RunSetup"]
 
@@ -63,6 +63,11 @@ SCENARIO_OUTPUT = {"block": "lateral_stretch", "rolled": "x_P", "torsional": "tw
 compares with the traces' response."""
 
 
+def block_length(geometry) -> float:
+    """The block's edge length (m) from ``[geometry]``: ``L``, else ``lx``, else 1 mm."""
+    return float(geometry.get("L", geometry.get("lx", 1e-3)))
+
+
 def experiment_problem(scenario: str, geometry, material, voltage=None, stretch=None, mesh=None,
                        **common) -> scenarios.Problem:
     """The Problem an experiment file describes: what ``dejax run``, ``dejax fit`` and
@@ -79,7 +84,7 @@ def experiment_problem(scenario: str, geometry, material, voltage=None, stretch=
     g = geometry
     shape = tuple(int(n) for n in g.get("mesh", mesh or DEFAULT_MESH.get(scenario, ())))
     if scenario == "block":
-        return scenarios.block(L=float(g.get("L", g.get("lx", 1e-3))), shape=shape, material=material,
+        return scenarios.block(L=block_length(g), shape=shape, material=material,
                                voltage=voltage, **common)
     if scenario == "rolled":
         point = "P_outer" if g.get("probe") in ("P_outer", "outer") else "P"
@@ -394,8 +399,7 @@ def _driven_targets(fwd, channel):
 
 
 def _block_forward(exp):
-    g = exp.geometry
-    return BlockForward(exp.n_units, L=float(g.get("L", g.get("lx", 1e-3))), rho_inf=float(exp.solver.get("rho_inf", 0.8)))
+    return BlockForward(exp.n_units, L=block_length(exp.geometry), rho_inf=float(exp.solver.get("rho_inf", 0.8)))
 
 
 def _rolled_forward(exp):

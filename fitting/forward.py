@@ -30,7 +30,7 @@ from dejax import integrate as it
 from dejax import loads
 
 from . import effects as fx
-from .experiment import SCENARIO_OUTPUT, experiment_problem
+from .experiment import SCENARIO_OUTPUT, block_length, experiment_problem
 from .traces import Trace
 
 __all__ = ["Forward", "FD_STEP", "residuals_at", "fd_jacobian", "forward_from_experiment", "block_forward",
@@ -339,7 +339,7 @@ def forward_from_experiment(exp) -> tuple[Forward, list[Trace]]:
     prob = experiment_problem(exp.scenario, g, mat, volt, stretch, mesh=DIAGNOSE_MESH.get(exp.scenario), **common)
     output, transform, drive = SCENARIO_OUTPUT[exp.scenario], None, (drive_stretch if uniaxial else None)
     if exp.scenario == "block" and channel == "displacement":
-        L = float(g.get("L", g.get("lx", 1e-3)))
+        L = block_length(g)
         transform = lambda y, L=L: (y - 1.0) * L  # noqa: E731
     fwd = Forward(prob, output, rho_inf=exp.solver.get("rho_inf"), pad_to=pad, transform=transform, drive=drive)
     return fwd, traces
