@@ -73,9 +73,10 @@ def main():
     F_ = mdl.deformation_gradients(m, mdl.full_coordinates(m, z, ctx.u1))
     E = mdl.nominal_field(m, ctx.phi1)
     pg = mdl.pressure_at_points(m, pr)
+    wmax = mdl.initial_history(m)  # no Mullins softening in Model IV: the history is unused
     from dejax import material as mat
-    pt_res = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_stress_and_update)(F_, E, ctx.flow, dt, pg, m.material))
-    pt_tan = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_tangent_and_update)(F_, E, ctx.flow, dt, pg, m.material))
+    pt_res = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_stress_and_update)(F_, E, ctx.flow, dt, pg, m.material, wmax))
+    pt_tan = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_tangent_and_update)(F_, E, ctx.flow, dt, pg, m.material, wmax))
     t_pres, _ = timed(pt_res, F_)
     t_ptan, _ = timed(pt_tan, F_)
     adm = jax.jit(lambda z: it._admissible(m, ctx, z))

@@ -241,19 +241,38 @@ def flow_step(model: Model, state, h, method: str = "bdf2"):
     Euler (Eq. 39). Leaves (n_el, n_gp, n_units, ...)."""
     if method == "bdf2" and state.Cv_prev is not None and state.h_prev is not None:
         fn = lambda Cv, Cv_prev: bdf2_flow_step(Cv, Cv_prev, h, state.h_prev)
-        return jax.vmap(jax.vmap(fn))(state.Cv, state.Cv_prev)
-    return jax.vmap(jax.vmap(lambda Cv: backward_euler_flow_step(Cv, h)))(state.Cv)
+        return over_points(fn, (0, 0))(state.Cv, state.Cv_prev)
+    return over_points(lambda Cv: backward_euler_flow_step(Cv, h), (0,))(state.Cv)
+
+
+def over_points(fn, in_axes):
+    """vmap a point function over elements and Gauss points as one batch.
+
+    ``in_axes`` as jax.vmap's: 0 for arguments (pytrees) whose leaves lead with (n_el,
+    n_gp), None for shared ones. The two leading axes are merged before one vmap and split
+    after it: one batching level fewer than vmap(vmap(fn)) when JAX traces the program (the
+    material law under jacfwd is most of a simulation's tracing), the same operations for
+    XLA."""
+    lead_arg = in_axes.index(0)
+
+    def mapped(*args):
+        lead = jax.tree.leaves(args[lead_arg])[0].shape[:2]
+        merge = lambda x: x.reshape((lead[0] * lead[1],) + x.shape[2:])  # noqa: E731 (explicit: n_units may be 0)
+        flat = [a if ax is None else jax.tree.map(merge, a) for a, ax in zip(args, in_axes)]
+        out = jax.vmap(fn, in_axes=in_axes)(*flat)
+        return jax.tree.map(lambda y: y.reshape(lead + y.shape[1:]), out)
+
+    return mapped
 
 
 def _per_point(fn):
-    """vmap a point function fn(F, E, Cv_old, dt, mat, wmax) over elements and Gauss points."""
-    return jax.vmap(jax.vmap(fn, in_axes=(0, 0, 0, None, None, 0)), in_axes=(0, 0, 0, None, None, 0))
+    """``over_points`` for fn(F, E, Cv_old, dt, mat, wmax)."""
+    return over_points(fn, (0, 0, 0, None, None, 0))
 
 
 def _per_point_mixed(fn):
-    """vmap fn(F, E, Cv_old, dt, p, mat, wmax) over elements and Gauss points (p per point)."""
-    inner = jax.vmap(fn, in_axes=(0, 0, 0, None, 0, None, 0))
-    return jax.vmap(inner, in_axes=(0, 0, 0, None, 0, None, 0))
+    """``over_points`` for fn(F, E, Cv_old, dt, p, mat, wmax) (p per point)."""
+    return over_points(fn, (0, 0, 0, None, 0, None, 0))
 
 
 def initial_history(model: Model) -> jax.Array:
@@ -267,8 +286,7 @@ def _history(model: Model, wmax):
 
 def _mullins(model: Model, F, wmax):
     """(eta, wmax_new), each (n_el, n_gp): ``material.mullins_factor`` at every point."""
-    fn = jax.vmap(jax.vmap(mullins_factor, in_axes=(0, 0, None)), in_axes=(0, 0, None))
-    return fn(F, _history(model, wmax), model.material)
+    return over_points(mullins_factor, (0, 0, None))(F, _history(model, wmax), model.material)
 
 
 def _softening(model: Model, F, wmax):
@@ -344,12 +362,10 @@ def internal_force_at(model: Model, q, E, Cv, p=None, wmax=None):
     if model.structure.mixed:
         grad = jax.grad(mixed_free_energy, argnums=0)
         pg = pressure_at_points(model, p)
-        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, 0, None, 0)),
-                     in_axes=(0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
+        P = over_points(grad, (0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
     else:
         grad = jax.grad(free_energy, argnums=0)
-        P = jax.vmap(jax.vmap(grad, in_axes=(0, 0, 0, None, None, 0)),
-                     in_axes=(0, 0, 0, None, None, 0))(F, E, Cv, mat, True, soft)
+        P = over_points(grad, (0, 0, 0, None, None, 0))(F, E, Cv, mat, True, soft)
     return scatter_slots(model, _nodal(model, P))
 
 
@@ -509,11 +525,9 @@ def free_energy_total(model: Model, q, E, Cv, p=None, wmax=None) -> jax.Array:
     soft = _softening(model, F, wmax)
     if model.structure.mixed:
         pg = pressure_at_points(model, p)
-        fn = jax.vmap(jax.vmap(mixed_free_energy, in_axes=(0, 0, 0, 0, None, 0)), in_axes=(0, 0, 0, 0, None, 0))
-        psi = fn(F, E, Cv, pg, mat, soft)
+        psi = over_points(mixed_free_energy, (0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
     else:
-        fn = jax.vmap(jax.vmap(free_energy, in_axes=(0, 0, 0, None, None, 0)), in_axes=(0, 0, 0, None, None, 0))
-        psi = fn(F, E, Cv, mat, True, soft)
+        psi = over_points(free_energy, (0, 0, 0, None, None, 0))(F, E, Cv, mat, True, soft)
     return jnp.sum(model.dV * psi)
 
 
@@ -525,4 +539,4 @@ def kinetic_energy(model: Model, v) -> jax.Array:
 def gent_margins(model: Model, q, Cv) -> jax.Array:
     """(n_el, n_gp) smallest Gent margin H at each Gauss point (<= 0: limit reached)."""
     F = deformation_gradients(model, q)
-    return jax.vmap(jax.vmap(min_gent_margin, in_axes=(0, 0, None)), in_axes=(0, 0, None))(F, Cv, model.material)
+    return over_points(min_gent_margin, (0, 0, None))(F, Cv, model.material)
