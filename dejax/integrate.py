@@ -312,7 +312,7 @@ def initial_state(model: Model, loading: Loading | None = None, t0: float = 0.0,
     phi = loading.phi(t0) if model.field_dirs.shape[0] else jnp.zeros(0)
     E = mdl.nominal_field(model, phi)
     wmax = mdl.mullins_history(model, q)  # the start's own energy: no softening yet
-    f_int, _ = mdl.internal_force(model, q, E, Cv, 1.0, p, wmax)
+    f_int = mdl.internal_force_at(model, q, E, Cv, p, wmax)  # at the start's own viscous state (no flow step)
     rhs = mdl.reduce(model, mdl.external_force(model) - f_int - model.damping * mdl.mass_apply(model, v))
     qdd_f = initial_acceleration(model, rhs)
     qdd = mdl.expand(model, qdd_f)
