@@ -234,17 +234,6 @@ def initial_viscous_state(model: Model) -> jax.Array:
     return jnp.broadcast_to(jnp.eye(3), (n_el, n_gp, model.material.n_units, 3, 3))
 
 
-def flow_step(model: Model, state, h, method: str = "bdf2"):
-    """Per-point FlowStep of the step of size h (s) from ``state`` (an integrate.State).
-
-    "bdf2" with the state's history (Cv_prev, h_prev) where it has one, else backward
-    Euler (Eq. 39). Leaves (n_el, n_gp, n_units, ...)."""
-    if method == "bdf2" and state.Cv_prev is not None and state.h_prev is not None:
-        fn = lambda Cv, Cv_prev: bdf2_flow_step(Cv, Cv_prev, h, state.h_prev)
-        return over_points(fn, (0, 0))(state.Cv, state.Cv_prev)
-    return over_points(lambda Cv: backward_euler_flow_step(Cv, h), (0,))(state.Cv)
-
-
 def over_points(fn, in_axes):
     """vmap a point function over elements and Gauss points as one batch.
 
@@ -263,6 +252,17 @@ def over_points(fn, in_axes):
         return jax.tree.map(lambda y: y.reshape(lead + y.shape[1:]), out)
 
     return mapped
+
+
+def flow_step(model: Model, state, h, method: str = "bdf2"):
+    """Per-point FlowStep of the step of size h (s) from ``state`` (an integrate.State).
+
+    "bdf2" with the state's history (Cv_prev, h_prev) where it has one, else backward
+    Euler (Eq. 39). Leaves (n_el, n_gp, n_units, ...)."""
+    if method == "bdf2" and state.Cv_prev is not None and state.h_prev is not None:
+        fn = lambda Cv, Cv_prev: bdf2_flow_step(Cv, Cv_prev, h, state.h_prev)
+        return over_points(fn, (0, 0))(state.Cv, state.Cv_prev)
+    return over_points(lambda Cv: backward_euler_flow_step(Cv, h), (0,))(state.Cv)
 
 
 def _per_point(fn):

@@ -190,3 +190,21 @@ def test_dof_scale_of_a_traced_mesh_is_the_element_size():
     np.testing.assert_allclose(eager[pos], ell, rtol=1e-14)
     np.testing.assert_allclose(eager[~pos], 1.0)
     np.testing.assert_allclose(traced, eager, rtol=1e-14)
+
+
+def test_over_points_equals_the_nested_vmap():
+    """One vmap over the merged (element, Gauss point) axes gives what vmap(vmap) gives,
+    for pytree arguments, shared arguments and an empty unit axis (n_units = 0)."""
+    rng = np.random.default_rng(0)
+    F = jnp.asarray(rng.standard_normal((3, 4, 3, 3)))
+    units = dict(a=jnp.asarray(rng.standard_normal((3, 4, 2, 3, 3))), empty=jnp.zeros((3, 4, 0, 3, 3)))
+    scale = 1.7
+
+    def point(F, units, s):
+        return dict(P=s * F @ F.T + jnp.sum(units["a"], axis=0), n=units["empty"].shape[0] + jnp.trace(F))
+
+    nested = jax.vmap(jax.vmap(point, in_axes=(0, 0, None)), in_axes=(0, 0, None))(F, units, scale)
+    merged = mdl.over_points(point, (0, 0, None))(F, units, scale)
+    assert merged["P"].shape == (3, 4, 3, 3) and merged["n"].shape == (3, 4)
+    np.testing.assert_array_equal(np.asarray(merged["P"]), np.asarray(nested["P"]))
+    np.testing.assert_array_equal(np.asarray(merged["n"]), np.asarray(nested["n"]))
