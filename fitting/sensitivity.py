@@ -80,9 +80,14 @@ def check_names(names, params):
             raise KeyError(f"parameter {k!r} has no value (known: {', '.join(params)})")
 
 
-def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
+def outputs(p, names: tuple, base: dict, setup: Setup, control: it.StepControl | None = it.StepControl()) -> dict:
     """Outputs (see the module docstring) for parameter vector ``p`` (values of ``names``),
-    other parameters from ``base``."""
+    other parameters from ``base``. ``control``: step cut-back (``integrate.simulate``; None:
+    the user's grid only, whose derivative is one pass over it)."""
+    return _outputs_and_cutbacks(p, names, base, setup, control)[0]
+
+
+def _outputs_and_cutbacks(p, names, base, setup, control):
     vals = parameters.from_vector(p, names, base)
     phi_max = setup.phi_max if setup.field is None else setup.field * vals["h"]
     prob = scenarios.rolled(setup.model, freq=setup.freq, phi_max=phi_max, h=vals["h"], r=vals["r"], L=vals["L"],
@@ -94,7 +99,7 @@ def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
     t = setup.times
     sol = it.simulate(model, prob.loading, t, prob.output_fn, it.GeneralizedAlpha(setup.rho_inf),
                       it.NewtonOptions(tol=setup.tol, max_iter=setup.max_iter),
-                      linsolve.choose_solver(prob.model.structure, setup.solver))
+                      linsolve.choose_solver(prob.model.structure, setup.solver), control=control)
     x = sol.outputs["x_P"]
     out = {"x_P": jnp.where(sol.status == 0, x, jnp.nan)}
     if setup.features:
@@ -107,18 +112,34 @@ def outputs(p, names: tuple, base: dict, setup: Setup) -> dict:
             out["loop_area"] = feat.loop_area(x, v, t, setup.freq)
             if c.n >= 2:
                 out["k_c"] = feat.k_c(t, x, setup.freq)
-    return out
+    return out, jnp.sum(sol.cutbacks)
 
 
 _JIT: dict = {}
 
 
 def _compiled(names: tuple, setup: Setup, kind: str):
+    """The jitted functions of (p, base): "value", the outputs of a run with step cut-back
+    plus "n_cutbacks" (steps of the run cut back); "jac", jacfwd of the outputs on the user's
+    grid (one pass: the derivative of that run when it took no cut-back); "jac_replay", with
+    cut-back (the run, then a replay of its accepted sub-steps differentiated)."""
     key = (names, setup, kind)
     if key not in _JIT:
-        f = lambda p, base: outputs(p, names, base, setup)  # noqa: E731
-        _JIT[key] = jax.jit(f if kind == "value" else jax.jacfwd(f))
+        if kind == "value":
+            def value(p, base):
+                out, n_cut = _outputs_and_cutbacks(p, names, base, setup, it.StepControl())
+                return {**out, "n_cutbacks": n_cut}
+
+            _JIT[key] = jax.jit(value)
+        else:
+            control = None if kind == "jac" else it.StepControl()
+            _JIT[key] = jax.jit(jax.jacfwd(lambda p, base: outputs(p, names, base, setup, control)))
     return _JIT[key]
+
+
+def _jacobian_kind(vals: dict) -> str:
+    """"jac" (one pass over the user's grid) for a run without cut-back, else "jac_replay"."""
+    return "jac" if int(vals["n_cutbacks"]) == 0 else "jac_replay"
 
 
 def _block(tree):
@@ -128,22 +149,29 @@ def _block(tree):
 def sensitivity(params: dict, names, setup: Setup = Setup(), timing: bool = True) -> dict:
     """Values, forward-mode Jacobians and timings.
 
+    The run takes step cut-backs where Newton needs them; when it took none (the usual
+    case) its Jacobian is one forward-mode pass over the user's grid, else the accepted
+    sub-steps are replayed (``integrate.simulate``; twice the work).
+
     Returns dict(values: name -> (..,) array, jacobian: name -> (.., k) array,
-    names, p, seconds_simulation, seconds_jacobian, ratio, compile_seconds).
+    names, p, n_cutbacks, seconds_simulation, seconds_jacobian, ratio, compile_seconds).
     Timings are of the compiled functions (best of 2 runs each when ``timing``).
     """
     names = tuple(names)
     check_names(names, params)
     base = {k: float(v) for k, v in params.items()}
     p = parameters.to_vector(base, names)
-    fv, fj = _compiled(names, setup, "value"), _compiled(names, setup, "jac")
+    fv = _compiled(names, setup, "value")
     tic = _time.perf_counter()
     vals = _block(fv(p, base))
     c1 = _time.perf_counter() - tic
+    fj = _compiled(names, setup, _jacobian_kind(vals))
+    n_cut = int(vals.pop("n_cutbacks"))
     tic = _time.perf_counter()
     jac = _block(fj(p, base))
     c2 = _time.perf_counter() - tic
-    res = dict(values=vals, jacobian=jac, names=list(names), p=np.asarray(p), first_call_seconds=(c1, c2))
+    res = dict(values=vals, jacobian=jac, names=list(names), p=np.asarray(p), n_cutbacks=n_cut,
+               first_call_seconds=(c1, c2))
     if timing:
         ts, tj = [], []
         for _ in range(2):
@@ -169,7 +197,7 @@ def reverse_check(params: dict, names, setup: Setup = Setup(), jacobian: dict | 
     base = {k: float(v) for k, v in params.items()}
     p = parameters.to_vector(base, names)
     if jacobian is None:
-        jacobian = _block(_compiled(names, setup, "jac")(p, base))
+        jacobian = sensitivity(params, names, setup, timing=False)["jacobian"]
     key = (names, setup, "vjp")
     if key not in _JIT:
         _JIT[key] = jax.jit(lambda p, base, ct: jax.vjp(lambda q: outputs(q, names, base, setup), p)[1](ct)[0])
@@ -202,7 +230,7 @@ def finite_differences(params: dict, names, setup: Setup = Setup(), rel_step: fl
         pp[i] += h
         pm[i] -= h
         a, b = _block(fv(jnp.asarray(pp), base)), _block(fv(jnp.asarray(pm), base))
-        cols.append({k: (a[k] - b[k]) / (2 * h) for k in a})
+        cols.append({k: (a[k] - b[k]) / (2 * h) for k in a if k != "n_cutbacks"})
     return {k: np.stack([c[k] for c in cols], axis=-1) for k in cols[0]}
 
 
