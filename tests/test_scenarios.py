@@ -203,7 +203,8 @@ def _felupe(shape):
 
 def _twist(shape, viscous=False, t_ramp=1.0, n_inc=10, phibar=0.5, solver=None):
     p = scenarios.torsional(phibar, t_ramp, viscous=viscous, shape=shape)
-    sol = p.simulate(t_ramp, t_ramp / n_inc, quasi_static=True, solver=solver or linsolve.choose_solver(p.model.structure))
+    solver = solver or linsolve.choose_solver(p.model.structure)
+    sol = p.simulate(t_ramp, t_ramp / n_inc, quasi_static=True, solver=solver)
     sol.check()
     return np.asarray(sol.outputs["twist_angle"]), sol
 
