@@ -137,11 +137,6 @@ def _compiled(names: tuple, setup: Setup, kind: str):
     return _JIT[key]
 
 
-def _jacobian_kind(vals: dict) -> str:
-    """"jac" (one pass over the user's grid) for a run without cut-back, else "jac_replay"."""
-    return "jac" if int(vals["n_cutbacks"]) == 0 else "jac_replay"
-
-
 def _block(tree):
     return jax.tree_util.tree_map(lambda a: np.asarray(jax.block_until_ready(a)), tree)
 
@@ -165,8 +160,8 @@ def sensitivity(params: dict, names, setup: Setup = Setup(), timing: bool = True
     tic = _time.perf_counter()
     vals = _block(fv(p, base))
     c1 = _time.perf_counter() - tic
-    fj = _compiled(names, setup, _jacobian_kind(vals))
     n_cut = int(vals.pop("n_cutbacks"))
+    fj = _compiled(names, setup, "jac" if n_cut == 0 else "jac_replay")  # one pass unless the run cut back
     tic = _time.perf_counter()
     jac = _block(fj(p, base))
     c2 = _time.perf_counter() - tic
