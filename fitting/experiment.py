@@ -41,7 +41,8 @@ from .fit import fit
 from .traces import Trace
 from .units import CHANNELS, SI_UNIT
 
-__all__ = ["Interp", "experiment_problem", "block_length", "DEFAULT_MESH", "SCENARIO_OUTPUT", "UniaxialForward", "BlockForward",
+__all__ = ["Interp", "experiment_problem", "block_length", "DEFAULT_MESH", "SCENARIO_OUTPUT", "simulate_trace",
+           "UniaxialForward", "BlockForward",
            "RolledForward", "uniaxial_target", "hossain_target",
            "from_experiment", "run_experiment", "experiment_run", "RunSetup"]
 
@@ -102,9 +103,27 @@ def experiment_problem(scenario: str, geometry, material, voltage=None, stretch=
 
 
 FIT_STEP_CONTROL = None
-"""Forward models of fits take the user's steps without cut-back: a differentiated run
-with cut-back replays its sub-steps (a second forward pass and a second compiled
-program), which fits, with hundreds of gradient evaluations, cannot afford yet."""
+"""Forward models of fits and of the diagnosis take the trace's steps without cut-back: a
+differentiated run with cut-back replays its sub-steps (a second forward pass and a second
+compiled program), which fits, with hundreds of gradient evaluations, cannot afford yet."""
+
+
+def simulate_trace(problem: scenarios.Problem, times, newton: it.NewtonOptions, *, model=None, loading=None,
+                   rho_inf: float | None = None, state0=None, pad_to: int | None = None) -> it.Solution:
+    """One trace of an experiment on its time grid ``times`` (N+1,) s: the one way the
+    forwards of fits (``UniaxialForward``, ``BlockForward``, ``RolledForward``) and of the
+    diagnosis (``fitting.forward.Forward``) simulate.
+
+    ``problem``'s scheme (quasi-static for the uniaxial test, else generalized-alpha at
+    ``rho_inf``, default the scenario's), its output function, the trace's steps as they are
+    (``FIT_STEP_CONTROL``: no cut-back); ``model`` and ``loading`` (default the problem's)
+    carry the trace's histories and the swapped leaves of fitted parameters or effects;
+    ``state0``, ``pad_to`` as in ``integrate.simulate``. Differentiable (jvp, grad) in the
+    arrays of ``model`` and ``loading``; returns the Solution (its status says whether it
+    converged)."""
+    return it.simulate(problem.model if model is None else model, problem.loading if loading is None else loading,
+                       times, problem.output_fn, problem.scheme(rho_inf), newton, state0=state0, pad_to=pad_to,
+                       control=FIT_STEP_CONTROL)
 
 
 # The forwards are equinox Modules with static fields only: equal configurations compare and
@@ -138,10 +157,9 @@ class _AtObservations(eqx.Module):
                                   voltage=volt, stretch=stretch, damping=params.get("c_d", 0.0))
 
     def simulate(self, params, data):
-        p = self.problem(params, data)
-        scheme = p.scheme() if p.quasi_static else it.GeneralizedAlpha(self.rho_inf)
-        return it.simulate(p.model, p.loading, data["times"], p.output_fn, scheme, self.newton(),
-                           control=FIT_STEP_CONTROL)
+        """The Solution of ``data``'s trace with the material of ``params`` (``simulate_trace``)."""
+        return simulate_trace(self.problem(params, data), data["times"], self.newton(),
+                              rho_inf=getattr(self, "rho_inf", None))  # the uniaxial test has none: quasi-static
 
     def __call__(self, params, data):
         sol = self.simulate(params, data)

@@ -30,7 +30,7 @@ from dejax import integrate as it
 from dejax import loads
 
 from . import effects as fx
-from .experiment import SCENARIO_OUTPUT, block_length, experiment_problem
+from .experiment import SCENARIO_OUTPUT, block_length, experiment_problem, simulate_trace
 from .traces import Trace
 
 __all__ = ["Forward", "FD_STEP", "residuals_at", "fd_jacobian", "forward_from_experiment", "block_forward",
@@ -66,9 +66,7 @@ class Forward:
         self.problem = problem
         self.pieces0 = fx.make_pieces(problem)
         self.output = output
-        # a quasi-static scenario (the uniaxial material test) steps quasi-statically
-        self.scheme = (it.QuasiStatic() if problem.quasi_static
-                       else it.GeneralizedAlpha(problem.rho_inf if rho_inf is None else rho_inf))
+        self.rho_inf = rho_inf  # None: the scenario's (the uniaxial test steps quasi-statically)
         self.drive = drive_voltage if drive is None else drive
         self.newton = newton
         self.pad_to = pad_to
@@ -76,6 +74,12 @@ class Forward:
         self._cache: dict = {}
         self.n_sims = 0
         self._count = threading.Lock()
+
+    @property
+    def scheme(self):
+        """The time scheme of its runs (``experiment.simulate_trace``): quasi-static for the
+        uniaxial test, else generalized-alpha at ``rho_inf`` (default the scenario's)."""
+        return self.problem.scheme(self.rho_inf)
 
     @staticmethod
     def _key(effects: Mapping, trace: Trace):
@@ -96,9 +100,11 @@ class Forward:
         with self._count:
             self.n_sims += 1
         state0 = self._start_state(p.model, loading, float(trace.time[0]))
-        return p.model, loading, pad, state0, it.simulate(p.model, loading, trace.time, self.problem.output_fn,
-                                                          self.scheme, self.newton, state0=state0, pad_to=pad,
-                                                          control=None)  # fixed steps
+        return p.model, loading, pad, state0, self._simulate(p.model, loading, trace.time, self.newton, state0, pad)
+
+    def _simulate(self, model, loading, times, newton, state0, pad):
+        return simulate_trace(self.problem, times, newton, model=model, loading=loading, rho_inf=self.rho_inf,
+                              state0=state0, pad_to=pad)
 
     def _start_state(self, model, loading, t0: float):
         """The state at t0: with a dead load (pre-stress), static equilibrium under it, the
@@ -119,9 +125,7 @@ class Forward:
     def _finish(self, effects: Mapping, trace: Trace, launched) -> np.ndarray:
         model, loading, pad, state0, sol = launched
         if not sol.ok and self.newton.reuse and int(sol.status) == int(it.Status.NEWTON_FAILED):
-            full = dataclasses.replace(self.newton, reuse=False)
-            sol = it.simulate(model, loading, trace.time, self.problem.output_fn, self.scheme, full, state0=state0,
-                              pad_to=pad, control=None)
+            sol = self._simulate(model, loading, trace.time, dataclasses.replace(self.newton, reuse=False), state0, pad)
             with self._count:
                 self.n_sims += 1
         y = np.asarray(sol.outputs[self.output], dtype=float)
