@@ -531,6 +531,13 @@ def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
     return P, r_p, D, P_p, r_pp, Cv_new
 
 
+@jax.jit
+def _margins_and_dets(F, Cv, mat: Material):
+    """(min_gent_margin, det F) at the points F (n, 3, 3), Cv (n, n_units, 3, 3): one compiled
+    program per shape (eager, each operation would be compiled on its own)."""
+    return jax.vmap(min_gent_margin, in_axes=(0, 0, None))(F, Cv, mat), jax.vmap(det3)(F)
+
+
 def check_state(F, Cv, mat: Material, where: str = "") -> None:
     """Raise GentLimitError (eager, not jittable) if any point is at or past a Gent limit.
 
@@ -541,8 +548,7 @@ def check_state(F, Cv, mat: Material, where: str = "") -> None:
     batch = F.shape[:-2]
     Ff = F.reshape(-1, 3, 3)
     Cvf = jnp.asarray(Cv).reshape((-1, mat.n_units, 3, 3)) if mat.n_units else jnp.zeros((Ff.shape[0], 0, 3, 3))
-    H = np.asarray(jax.vmap(min_gent_margin, in_axes=(0, 0, None))(Ff, Cvf, mat))
-    J = np.asarray(jnp.linalg.det(Ff))
+    H, J = (np.asarray(x) for x in _margins_and_dets(Ff, Cvf, mat))
     point = lambda i: tuple(int(k) for k in np.unravel_index(i, batch))
     if np.any(J <= 0):
         i = int(np.argmin(J))
@@ -564,8 +570,13 @@ def evaluate(F, E, Cv, mat: Material):
       F: (..., 3, 3); E: (..., 3); Cv: (..., n_units, 3, 3).
     """
     check_state(F, Cv, mat)
-    F = jnp.asarray(F)
+    return _energy_and_stress(jnp.asarray(F), jnp.asarray(E), jnp.asarray(Cv), mat)
+
+
+@jax.jit
+def _energy_and_stress(F, E, Cv, mat: Material):
+    """(psi, P) at the points F (..., 3, 3) (``evaluate``), compiled once per shape."""
     fn = lambda F_, E_, Cv_: (free_energy(F_, E_, Cv_, mat), jax.grad(free_energy)(F_, E_, Cv_, mat))
     for _ in range(F.ndim - 2):
         fn = jax.vmap(fn)
-    return fn(F, jnp.asarray(E), jnp.asarray(Cv))
+    return fn(F, E, Cv)

@@ -312,8 +312,11 @@ def test_first_order_electrostriction_closed_form():
     along x the x stretch a enters instead; at E = 0 the energy and its derivative are finite
     and equal to the field-free ones; the change is first order in c - 1 (eps_a's I1bar - 3 is
     second order)."""
-    from dejax.material import Material, equilibrium_energy
+    from dejax.material import Material
+    from dejax.material import equilibrium_energy as energy
 
+    equilibrium_energy = jax.jit(energy)  # one compiled program, not one per operation
+    grad = jax.jit(jax.grad(energy))
     base = dict(mu_inf=60e3, K_inf=1e9, Jm_inf=20.0, eps=4e-11, rho=1e3)
     a, b, c, E0 = 1.3, 0.9, 0.8, 3e7
     F = jnp.diag(jnp.array([a, b, c]))
@@ -324,8 +327,8 @@ def test_first_order_electrostriction_closed_form():
             psi_e = float(equilibrium_energy(F, E, mat) - equilibrium_energy(F, jnp.zeros(3), mat))
             ref = -0.5 * 4e-11 * (1 + eb * (lam - 1)) * a * b * c * E0 ** 2 / lam ** 2
             assert psi_e == pytest.approx(ref, rel=1e-12)
-        g = jax.grad(equilibrium_energy)(F, jnp.zeros(3), mat)
-        g0 = jax.grad(equilibrium_energy)(F, jnp.zeros(3), Material(**base))
+        g = grad(F, jnp.zeros(3), mat)
+        g0 = grad(F, jnp.zeros(3), Material(**base))
         assert np.all(np.isfinite(np.asarray(g))) and np.allclose(np.asarray(g), np.asarray(g0), rtol=1e-14, atol=0)
     # first vs second order: isochoric stretch along z by 1 + d
     E = jnp.array([0.0, 0.0, E0])
@@ -688,13 +691,14 @@ def test_mixed_energy_eliminates_to_the_penalty_energy():
     K = 6.7e9 + 1e9 + 2e9
     J = float(np.linalg.det(np.asarray(F)))
     p_star = K * (J - 1.0)
-    psi = float(m.free_energy(F, E, Cv, mat))
-    psi_mixed = float(m.mixed_free_energy(F, E, Cv, p_star, mat))
+    jit = jax.jit  # one compiled program per function, not one per operation
+    psi = float(jit(m.free_energy)(F, E, Cv, mat))
+    psi_mixed = float(jit(m.mixed_free_energy)(F, E, Cv, p_star, mat))
     assert psi_mixed == pytest.approx(psi, rel=1e-12)
-    P = np.asarray(jax.grad(m.free_energy)(F, E, Cv, mat))
-    P_mixed = np.asarray(jax.grad(m.mixed_free_energy)(F, E, Cv, p_star, mat))
+    P = np.asarray(jit(jax.grad(m.free_energy))(F, E, Cv, mat))
+    P_mixed = np.asarray(jit(jax.grad(m.mixed_free_energy))(F, E, Cv, p_star, mat))
     np.testing.assert_allclose(P_mixed, P, rtol=1e-10, atol=1e-10 * np.abs(P).max())
-    dp = float(jax.grad(m.mixed_free_energy, argnums=3)(F, E, Cv, 1e5, mat))
+    dp = float(jit(jax.grad(m.mixed_free_energy, argnums=3))(F, E, Cv, 1e5, mat))
     assert dp == pytest.approx(J - 1.0 - 1e5 / K, rel=1e-12)
 
 

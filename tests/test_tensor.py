@@ -40,17 +40,18 @@ def test_batched_over_points():
 
 @pytest.mark.parametrize("f, ref", [(det3, jnp.linalg.det), (inv3, jnp.linalg.inv)], ids=["det3", "inv3"])
 def test_derivatives_match_lapack_forms_and_central_differences(f, ref):
-    J = np.asarray(jax.jacfwd(f)(jnp.asarray(A)))
-    np.testing.assert_allclose(J, jax.jacfwd(ref)(jnp.asarray(A)), rtol=1e-12, atol=1e-13)
-    np.testing.assert_allclose(jax.jacrev(f)(jnp.asarray(A)), J, rtol=1e-13, atol=1e-14)  # transposed rule
+    jit = jax.jit  # each derivative one compiled program, not one per operation
+    J = np.asarray(jit(jax.jacfwd(f))(jnp.asarray(A)))
+    np.testing.assert_allclose(J, jit(jax.jacfwd(ref))(jnp.asarray(A)), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(jit(jax.jacrev(f))(jnp.asarray(A)), J, rtol=1e-13, atol=1e-14)  # transposed rule
     h = 1e-6
-    fd = (np.asarray(f(A + h * DA)) - np.asarray(f(A - h * DA))) / (2 * h)
-    _, jvp = jax.jvp(f, (jnp.asarray(A),), (jnp.asarray(DA),))
+    fd = (np.asarray(jit(f)(A + h * DA)) - np.asarray(jit(f)(A - h * DA))) / (2 * h)
+    _, jvp = jit(lambda a, da: jax.jvp(f, (a,), (da,)))(jnp.asarray(A), jnp.asarray(DA))
     np.testing.assert_allclose(jvp, fd, rtol=1e-8, atol=1e-9)
     # second order: forward over forward and forward over reverse
-    H = np.asarray(jax.jacfwd(jax.jacfwd(f))(jnp.asarray(A)))
-    np.testing.assert_allclose(H, jax.jacfwd(jax.jacfwd(ref))(jnp.asarray(A)), rtol=1e-11, atol=1e-12)
-    np.testing.assert_allclose(jax.jacfwd(jax.jacrev(f))(jnp.asarray(A)), H, rtol=1e-12, atol=1e-13)
+    H = np.asarray(jit(jax.jacfwd(jax.jacfwd(f)))(jnp.asarray(A)))
+    np.testing.assert_allclose(H, jit(jax.jacfwd(jax.jacfwd(ref)))(jnp.asarray(A)), rtol=1e-11, atol=1e-12)
+    np.testing.assert_allclose(jit(jax.jacfwd(jax.jacrev(f)))(jnp.asarray(A)), H, rtol=1e-12, atol=1e-13)
 
 
 def test_closed_forms_of_the_derivatives():
