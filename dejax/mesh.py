@@ -145,8 +145,14 @@ class Mesh(eqx.Module):
 
     def reference_coordinates(self) -> jax.Array:
         """(n_dofs,) reference coordinate vector q0: positions and identity gradients."""
-        eye = jnp.broadcast_to(jnp.eye(3), (self.n_nodes, 3, 3))
-        return jnp.concatenate([self.X[:, None, :], eye], axis=1).reshape(-1)
+        return reference_coordinates(self.X)
+
+
+def reference_coordinates(X) -> jax.Array:
+    """(12 n_nodes,) reference coordinates of the nodes X (n_nodes, 3): each node's position
+    followed by identity position gradients."""
+    eye = jnp.broadcast_to(jnp.eye(3), (X.shape[0], 3, 3))
+    return jnp.concatenate([X[:, None, :], eye], axis=1).reshape(-1)
 
 
 def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(False, False, False), extra_sets=None):

@@ -30,7 +30,7 @@ from .constraints import Constraints
 from .material import (Material, backward_euler_flow_step, bdf2_flow_step, bulk_modulus, free_energy, min_gent_margin,
                        mixed_free_energy, mixed_stress_and_update, mixed_tangent_and_update, stress_and_update,
                        stress_tangent_and_update, mullins_factor)
-from .mesh import Mesh, Static
+from .mesh import Mesh, Static, reference_coordinates
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -127,7 +127,8 @@ def build_model(
         constraints = Constraints(mesh.n_dofs)
     if constraints.n_dofs != mesh.n_dofs:
         raise ValueError(f"constraints are for {constraints.n_dofs} coordinates, mesh has {mesh.n_dofs}")
-    N, G, dV = el.mesh_reference_data(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, int(gauss_order))
+    N, G, dV, field_dirs, mass_e, q0 = _reference_arrays(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, mesh.potential,
+                                                         material.rho, int(gauss_order))
     try:
         dv = np.asarray(dV)
         if np.any(dv <= 0):
@@ -141,7 +142,7 @@ def build_model(
     col, constrained, dirs, free = constraints.split()
     q0_np = None
     try:
-        q0_np = np.asarray(mesh.reference_coordinates())
+        q0_np = np.asarray(q0)
     except jax.errors.TracerArrayConversionError:
         pass
     if q0_np is not None:
@@ -155,16 +156,26 @@ def build_model(
                           n_dofs=mesh.n_dofs, gauss_order=int(gauss_order), is_position=(free % 12) < 3,
                           node_sets=dict(mesh.node_sets), volumetric=volumetric, incompressible=incompressible,
                           pressure_basis=basis)
-    pot = mesh.potential[:, conn, :]  # (n_ch, n_el, 8, 4)
+    return Model(q0=q0, N=N, G=G, dV=dV, field_dirs=field_dirs, mass_e=mass_e,
+                 material=material, damping=jnp.asarray(damping, dtype=float), gravity=jnp.asarray(gravity, dtype=float),
+                 dead_load=jnp.zeros(mesh.n_dofs), prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
+
+
+@functools.partial(jax.jit, static_argnames=("gauss_order",))
+def _reference_arrays(X, conn, dXdxi, potential, rho, gauss_order: int):
+    """The model's reference arrays of a mesh (X (n_nodes, 3), conn (n_el, 8), dXdxi,
+    potential (n_ch, n_nodes, 4)), compiled as one program per mesh size (eager, each
+    operation would be compiled on its own): N, G, dV (``element.mesh_reference_data``),
+    field_dirs (n_ch, n_el, n_gp, 3), mass_e (n_el, 32, 32) and q0 (n_dofs,)."""
+    N, G, dV = el.mesh_reference_data(X, conn, dXdxi, gauss_order)
+    pot = potential[:, conn, :]  # (n_ch, n_el, 8, 4)
     pot = pot.reshape(pot.shape[0], pot.shape[1], 32)
     field_dirs = jnp.einsum("cea,egai->cegi", pot, G)
     # the mass integrand is of degree 6 per direction: 4 points are exact (a lower
     # stiffness rule would leave the mass matrix rank deficient)
-    Nm, _, dVm = (N, G, dV) if gauss_order >= 4 else el.mesh_reference_data(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, 4)
-    mass_e = jax.vmap(el.element_mass, in_axes=(0, 0, None))(Nm, dVm, material.rho)
-    return Model(q0=mesh.reference_coordinates(), N=N, G=G, dV=dV, field_dirs=field_dirs, mass_e=mass_e,
-                 material=material, damping=jnp.asarray(damping, dtype=float), gravity=jnp.asarray(gravity, dtype=float),
-                 dead_load=jnp.zeros(mesh.n_dofs), prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
+    Nm, _, dVm = (N, G, dV) if gauss_order >= 4 else el.mesh_reference_data(X, conn, dXdxi, 4)
+    mass_e = jax.vmap(el.element_mass, in_axes=(0, 0, None))(Nm, dVm, rho)
+    return N, G, dV, field_dirs, mass_e, reference_coordinates(X)
 
 
 def dof_scale(model: Model) -> jax.Array:
