@@ -904,12 +904,15 @@ def simulate(model: Model, loading: Loading, times, output_fn: Callable, scheme=
         raise ValueError(f"pad_to = {m} is smaller than the number of steps {n}")
     if control is not None and control.max_substeps is not None and control.max_substeps < m:
         raise ValueError(f"StepControl.max_substeps = {control.max_substeps} is below the number of steps {m}")
-    tt = jnp.concatenate([jnp.asarray(times[1:], dtype=float), jnp.full(m - n, times[-1])])
+    xp = np if isinstance(times, np.ndarray) else jnp  # a concrete grid: no compiled program for these few lines
+    tt = xp.concatenate([times[1:], xp.full(m - n, times[-1])])
     # steps of zero length are skipped too: a grid padded by repeating its last time (so
     # that traces of different lengths share one compilation) runs only its real steps
-    active = (jnp.arange(m) < n) & (tt > jnp.concatenate([jnp.asarray(times[:1], dtype=float), tt[:-1]]))
-    sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), tt, active, state0, output_fn=output_fn,
-                        scheme=scheme, newton=newton, solver=solver, control=control)
+    active = (xp.arange(m) < n) & (tt > xp.concatenate([times[:1], tt[:-1]]))
+    sol = _simulate_jit(model, loading, jnp.asarray(times[0], dtype=float), jnp.asarray(tt), jnp.asarray(active), state0,
+                        output_fn=output_fn, scheme=scheme, newton=newton, solver=solver, control=control)
+    if m == n:  # nothing padded: nothing to cut (an eager slice would be one more compiled program)
+        return dataclasses.replace(sol, time=jnp.asarray(times))
     outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)
     return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.factorizations[:n], sol.status, sol.fail_step,
                     sol.final, sol.cutbacks[:n], sol.dt_smallest, sol.last_converged)

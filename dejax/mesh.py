@@ -26,6 +26,7 @@ one compiled program per topology.
 """
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -155,19 +156,24 @@ def reference_coordinates(X) -> jax.Array:
     return jnp.concatenate([X[:, None, :], eye], axis=1).reshape(-1)
 
 
-def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(False, False, False), extra_sets=None):
+def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(False, False, False), extra_sets=None,
+                    params=()):
     """Mesh of n1 x n2 x n3 elements on the box [0, l1] x [0, l2] x [0, l3] of parameters
     (u, v, w), mapped by a smooth ``node_map(u, v, w) -> X (3,)``.
 
     Args:
-      node_map: JAX-traceable smooth map from parameters to reference positions (m).
+      node_map: JAX-traceable smooth map ``node_map(u, v, w, *params)`` from parameters to
+        reference positions (m).
       shape: (n1, n2, n3) elements per parameter direction.
       lengths: (l1, l2, l3) parameter extents (may be traced).
-      potential_map: optional list of functions X (3,) -> unit potential (V per V).
+      potential_map: optional list of functions ``(X (3,), *params)`` -> unit potential (V per V).
       periodic: per direction, whether the last node layer is identified with the
         first (closed rings, e.g. a tube's circumference).
       extra_sets: optional dict of extra node sets, name -> function (i, j, k,
         n1, n2, n3) -> bool on node grid indices.
+      params: the maps' numeric parameters (may be traced). Module-level maps with their
+        numbers passed here share one compiled program for every mesh of the same shape
+        (a closure is compiled afresh at each call).
     Returns:
       Mesh with node sets "u0", "u1", "v0", "v1", "w0", "w1" (faces of the
       parameter box; absent for periodic directions) and "all".
@@ -186,19 +192,9 @@ def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(Fals
     wrapped = np.stack([idx[..., d] % nn[d] if periodic[d] else idx[..., d] for d in range(3)], axis=-1)
     conn = node_id[wrapped[..., 0], wrapped[..., 1], wrapped[..., 2]]
 
-    def evaluate(lengths):
-        # one compiled program instead of dozens of eagerly compiled primitives
-        params = jnp.stack([grid[:, d] * (lengths[d] / n[d]) for d in range(3)], axis=1)
-        X = jax.vmap(lambda p: node_map(*p))(params)
-        # dX/dxi at each element node, from the map at unwrapped parameters (exact)
-        elem_params = jnp.stack([idx[..., d] * (lengths[d] / n[d]) for d in range(3)], axis=-1)  # (n_el, 8, 3)
-        half = jnp.stack([lengths[d] / n[d] / 2.0 for d in range(3)])
-        jac = jax.vmap(jax.vmap(lambda p: jax.jacfwd(lambda q: node_map(*q))(p)))(elem_params)  # (n_el, 8, 3, 3)
-        dXdxi = jac * half[None, None, None, :]
-        potential = None if potential_map is None else _potential_from_maps(X, potential_map)
-        return X, dXdxi, potential
-
-    X, dXdxi, potential = jax.jit(evaluate)(lengths)
+    maps = None if potential_map is None else tuple(potential_map)
+    params = tuple(jnp.asarray(x, dtype=float) for x in params)
+    X, dXdxi, potential = _mapped_nodes(node_map, maps, n, tuple(bool(x) for x in periodic), lengths, params)
 
     sets = {"all": np.arange(len(grid))}
     for d, name in enumerate("uvw"):
@@ -211,18 +207,44 @@ def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(Fals
     return Mesh(X, dXdxi, conn, potential, sets)
 
 
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _mapped_nodes(node_map, potential_map, n, periodic, lengths, params):
+    """(X (n_nodes, 3), dXdxi (n_el, 8, 3, 3), potential) of ``structured_mesh``: one
+    compiled program (not dozens of eagerly compiled operations), cached per map and shape."""
+    nn = tuple(n[d] + (0 if periodic[d] else 1) for d in range(3))
+    grid = np.stack(np.meshgrid(*[np.arange(nn[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
+    ei = np.stack(np.meshgrid(*[np.arange(n[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
+    idx = ei[:, None, :] + ((NODE_CORNERS + 1) // 2).astype(np.int64)[None, :, :]  # (n_el, 8, 3) unwrapped
+    at = jnp.stack([grid[:, d] * (lengths[d] / n[d]) for d in range(3)], axis=1)
+    X = jax.vmap(lambda p: node_map(*p, *params))(at)
+    # dX/dxi at each element node, from the map at unwrapped parameters (exact)
+    elem_at = jnp.stack([idx[..., d] * (lengths[d] / n[d]) for d in range(3)], axis=-1)  # (n_el, 8, 3)
+    half = jnp.stack([lengths[d] / n[d] / 2.0 for d in range(3)])
+    jac = jax.vmap(jax.vmap(lambda p: jax.jacfwd(lambda q: node_map(*q, *params))(p)))(elem_at)  # (n_el, 8, 3, 3)
+    dXdxi = jac * half[None, None, None, :]
+    potential = None if potential_map is None else _potential_from_maps(
+        X, [functools.partial(_with_params, pm, params) for pm in potential_map])
+    return X, dXdxi, potential
+
+
+def _with_params(pm, params, X):
+    return pm(X, *params)
+
+
+def _box_map(u, v, w, *_):
+    return jnp.stack([u, v, w])
+
+
+def _box_potential(X, lz):
+    return X[2] / lz
+
+
 def block_mesh(lx, ly=None, lz=None, shape=(1, 1, 1)):
     """Rectangular block [0, lx] x [0, ly] x [0, lz] (m) with an electrode pair on
     z = 0 (ground) and z = lz (channel 0). Node sets x0, x1, y0, y1, z0, z1."""
     ly = lx if ly is None else ly
     lz = lx if lz is None else lz
-    lz_ = jnp.asarray(lz, dtype=float)
-    m = structured_mesh(
-        lambda u, v, w: jnp.stack([u, v, w]),
-        shape,
-        (lx, ly, lz),
-        potential_map=[lambda X: X[2] / lz_],
-    )
+    m = structured_mesh(_box_map, shape, (lx, ly, lz), potential_map=[_box_potential], params=(lz,))
     sets = dict(m.node_sets)
     for a, b in zip("uvw", "xyz"):
         sets[f"{b}0"] = sets.pop(f"{a}0")
@@ -255,6 +277,20 @@ def _potential_from_maps(X, maps):
         grad = jax.vmap(jax.grad(pm))(X)
         chans.append(jnp.concatenate([val[:, None], grad], axis=1))
     return jnp.stack(chans)
+
+
+def _strip_map(u, v, w, rate, width, thickness):
+    th = rate * u
+    s = v - 0.5 * width
+    t = w - 0.5 * thickness
+    c, sn = jnp.cos(th), jnp.sin(th)
+    return jnp.stack([u, s * c - t * sn, s * sn + t * c])
+
+
+def _strip_potential(X, rate, width, thickness):
+    th = rate * X[0]
+    t = -X[1] * jnp.sin(th) + X[2] * jnp.cos(th)  # inverse rotation
+    return t / thickness + 0.5
 
 
 def _concrete_float(x):
@@ -352,16 +388,6 @@ def rolled_tube_mesh(h, r, L, shape=(12, 20, 4)) -> Mesh:
         raise ValueError(f"shape must be 3 positive integers (n_l, n_s, n_r), got {shape}")
     if n[1] < 3:
         raise ValueError(f"rolled_tube_mesh needs at least 3 circumferential elements, got n_s = {n[1]}")
-    r_ = jnp.asarray(r, dtype=float)
-    h_ = jnp.asarray(h, dtype=float)
-
-    def node_map(u, v, w):
-        rho = r_ + w
-        return jnp.stack([-u, rho * jnp.cos(v), rho * jnp.sin(v)])
-
-    def radial_potential(X):
-        return (jnp.sqrt(X[1] ** 2 + X[2] ** 2) - r_) / h_
-
     extra = {
         "top": lambda i, j, k, n1, n2, n3: i == 0,
         "bottom": lambda i, j, k, n1, n2, n3: i == n1,
@@ -370,14 +396,17 @@ def rolled_tube_mesh(h, r, L, shape=(12, 20, 4)) -> Mesh:
         "P": lambda i, j, k, n1, n2, n3: i == 0 and j == 0 and k == 0,
         "P_outer": lambda i, j, k, n1, n2, n3: i == 0 and j == 0 and k == n3,
     }
-    return structured_mesh(
-        node_map,
-        n,
-        (L, 2.0 * np.pi, h),
-        potential_map=[radial_potential],
-        periodic=(False, True, False),
-        extra_sets=extra,
-    )
+    return structured_mesh(_tube_map, n, (L, 2.0 * np.pi, h), potential_map=[_tube_potential],
+                           periodic=(False, True, False), extra_sets=extra, params=(r, h))
+
+
+def _tube_map(u, v, w, r, h):
+    rho = r + w
+    return jnp.stack([-u, rho * jnp.cos(v), rho * jnp.sin(v)])
+
+
+def _tube_potential(X, r, h):
+    return (jnp.sqrt(X[1] ** 2 + X[2] ** 2) - r) / h
 
 
 def twisted_strip_mesh(length=60e-3, width=10e-3, thickness=1e-3, turns=1.0, shape=(48, 8, 2)) -> Mesh:
@@ -417,24 +446,9 @@ def twisted_strip_mesh(length=60e-3, width=10e-3, thickness=1e-3, turns=1.0, sha
     n = tuple(int(s) for s in shape)
     if len(n) != 3 or any(s < 1 for s in n):
         raise ValueError(f"shape must be 3 positive integers (n_x, n_width, n_thickness), got {shape}")
-    len_ = jnp.asarray(length, dtype=float)
-    wid_ = jnp.asarray(width, dtype=float)
-    thk_ = jnp.asarray(thickness, dtype=float)
-    rate = 2.0 * jnp.pi * jnp.asarray(turns, dtype=float) / len_  # dtheta/dx (rad/m)
-
-    def node_map(u, v, w):
-        th = rate * u
-        s = v - 0.5 * wid_
-        t = w - 0.5 * thk_
-        c, sn = jnp.cos(th), jnp.sin(th)
-        return jnp.stack([u, s * c - t * sn, s * sn + t * c])
-
-    def thickness_potential(X):
-        th = rate * X[0]
-        t = -X[1] * jnp.sin(th) + X[2] * jnp.cos(th)  # inverse rotation
-        return t / thk_ + 0.5
-
-    m = structured_mesh(node_map, n, (length, width, thickness), potential_map=[thickness_potential])
+    rate = 2.0 * jnp.pi * jnp.asarray(turns, dtype=float) / jnp.asarray(length, dtype=float)  # dtheta/dx (rad/m)
+    m = structured_mesh(_strip_map, n, (length, width, thickness), potential_map=[_strip_potential],
+                        params=(rate, width, thickness))
     sets = dict(m.node_sets)
     sets["x0"] = sets["u0"]
     sets["x1"] = sets["u1"]

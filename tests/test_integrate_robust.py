@@ -85,8 +85,12 @@ def test_cut_back_recovers_and_derivatives_hold_through_it():
     np.testing.assert_allclose(np.asarray(sol.outputs["stress"]), np.asarray(ref.outputs["stress"])[::10], rtol=1e-6,
                                atol=1e-6 * MU_U)
     f = lambda mu: run(mu).outputs["stress"][-1]  # noqa: E731
-    _, jvp = jax.jvp(f, (MU_U,), (1.0,))
-    grad = jax.grad(f)(MU_U)
+    # forward mode by linearization, reverse mode by its transpose (what jax.grad does):
+    # one forward program serves both
+    y, f_lin = jax.linearize(f, MU_U)
+    assert float(y) == float(sol.outputs["stress"][-1])
+    jvp = f_lin(1.0)
+    (grad,) = jax.linear_transpose(f_lin, MU_U)(1.0)
     h = 1e-3 * MU_U
     plus, minus = run(MU_U + h), run(MU_U - h)
     assert np.array_equal(np.asarray(plus.cutbacks), np.asarray(sol.cutbacks))
