@@ -456,8 +456,9 @@ def fit(
     # --- Adam
     opt = optax.adam(adam_lr)
     st = opt.init(jnp.asarray(theta))
+    adam_update = jax.jit(opt.update)  # one compiled program, not one per operation
     for i in range(adam_steps):
-        u, st = opt.update(jnp.asarray(g), st)
+        u, st = adam_update(jnp.asarray(g), st)
         for j in range(6):  # a failed simulation (inf loss): shorten the step
             cand = theta + 0.5 ** j * np.asarray(u)
             fc, gc = value_and_grad(cand)
@@ -477,8 +478,9 @@ def fit(
     # --- L-BFGS (optax direction + backtracking Armijo line search)
     lb = optax.scale_by_lbfgs()
     ls = lb.init(jnp.asarray(theta))
+    lbfgs_update = jax.jit(lb.update)
     for i in range(lbfgs_steps):
-        d, ls = lb.update(jnp.asarray(g), ls, jnp.asarray(theta))
+        d, ls = lbfgs_update(jnp.asarray(g), ls, jnp.asarray(theta))
         d = -np.asarray(d)
         slope = float(np.dot(g, d))
         if slope >= 0:  # not a descent direction: restart with steepest descent

@@ -44,6 +44,13 @@ SIM_THREADS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffin
 _initial_state = eqx.filter_jit(it.initial_state)
 
 
+@eqx.filter_jit
+def _measure(sensor, t, y):
+    """``sensor(t, y)``: the measurement of the output y (one compiled program per sensor
+    structure and trace length, not one per operation)."""
+    return sensor(t, y)
+
+
 class Forward:
     """Baseline + effects -> predicted outputs, reusing one compiled simulate.
 
@@ -176,7 +183,7 @@ class Forward:
             sensor_fx = {k: v for k, v in effects.items() if fx.get(k).acts_on_sensor}
             if sensor_fx:
                 s = fx.apply_effects(self.pieces0, sensor_fx).sensor
-                y = np.asarray(s(jnp.asarray(trace.time), jnp.asarray(y)))
+                y = np.asarray(_measure(s, jnp.asarray(trace.time), jnp.asarray(y)))
             out.append(y)
         return out
 
