@@ -29,8 +29,13 @@ def test_sweep_sequential_and_vmap_agree():
 
 # Run in a fresh process: the device count is fixed when JAX's CPU backend starts. Three
 # cases on two devices: the batch is padded to four, two cases per device. It records
-# where the batch's input (time grids) and output (x_P) shards lie, and the series of
-# both methods.
+# where the batch's input (time grids) and output (x_P) shards lie, and the batch's series;
+# the sequential reference runs in the test's own process (one device), with the settings
+# of the sweep command's test in test_cli_ux.py (1x4x1, 2 cycles of 10 steps): one
+# compiled program for both, loaded from the compilation cache by whichever runs second.
+SHARDED_CASES = {"freq": [20.0, 40.0, 60.0]}
+SHARDED_BASE = dict(phi_max=25e3)
+SHARDED_KW = dict(shape=(1, 4, 1), n_cycles=2, steps_per_cycle=10, keep_series=True)
 _SHARDED_SCRIPT = r"""
 import json
 import jax
@@ -53,17 +58,14 @@ def spy(M, Lg, G, *rest):
     return outs, status
 
 sweep._batched = spy
-cases = sweep.cases_from_grid({"freq": [20.0, 40.0, 60.0]}, dict(phi_max=25e3))
-kw = dict(shape=(1, 4, 1), n_cycles=1, steps_per_cycle=10, keep_series=True)
-rows_v, info_v = sweep.run_sweep(cases, method="vmap", **kw)
-rows_s, info_s = sweep.run_sweep(cases, method="sequential", **kw)
+cases = sweep.cases_from_grid(%r, %r)
+rows_v, info_v = sweep.run_sweep(cases, method="vmap", **%r)
 ser = lambda rows: [dict(ok=r["ok"], **{k: np.asarray(v).tolist() for k, v in r["series"].items()}) for r in rows]
-print("RESULT", json.dumps(dict(jax_devices=len(jax.devices()), placed=placed, info_v=info_v, info_s=info_s,
-                                vmap=ser(rows_v), sequential=ser(rows_s))))
-"""
+print("RESULT", json.dumps(dict(jax_devices=len(jax.devices()), placed=placed, info_v=info_v, vmap=ser(rows_v))))
+""" % (SHARDED_CASES, SHARDED_BASE, SHARDED_KW)
 
 
-def test_sweep_vmap_sharded_over_two_cpu_devices():
+def test_sweep_vmap_sharded_over_two_cpu_devices(tmp_path):
     """method="vmap" shards the cases over two (emulated CPU) devices and gives the
     sequential single-device results, case by case."""
     flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "xla_force_host_platform_device_count" not in f]
@@ -71,10 +73,19 @@ def test_sweep_vmap_sharded_over_two_cpu_devices():
                XLA_FLAGS=" ".join(flags + ["--xla_force_host_platform_device_count=2"]),
                # a pool of 2 threads (2 cores) for 2 devices can deadlock in the batched LU (sweep._warn_cpu_pool)
                PJRT_NPROC="4")
-    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=600)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    res = json.loads(next(ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT "))[len("RESULT "):])
+    with open(tmp_path / "out", "w") as fo, open(tmp_path / "err", "w") as fe:  # files: no pipe to fill meanwhile
+        proc = subprocess.Popen([sys.executable, "-c", _SHARDED_SCRIPT], cwd=ROOT, env=env, stdout=fo, stderr=fe)
+        from dejax import sweep  # the sequential reference here, on this process's single device, meanwhile
+
+        rows_s, info_s = sweep.run_sweep(sweep.cases_from_grid(SHARDED_CASES, SHARDED_BASE), method="sequential",
+                                         **SHARDED_KW)
+        proc.wait(timeout=600)
+    out, err = (tmp_path / "out").read_text(), (tmp_path / "err").read_text()
+    assert proc.returncode == 0, err[-4000:]
+    res = json.loads(next(ln for ln in out.splitlines() if ln.startswith("RESULT "))[len("RESULT "):])
+    res["info_s"] = info_s
+    res["sequential"] = [dict(ok=r["ok"], **{k: np.asarray(v).tolist() for k, v in r["series"].items()})
+                         for r in rows_s]
 
     assert res["jax_devices"] == 2
     assert res["info_v"]["n_devices"] == 2 and res["info_v"]["n_cases"] == 3 and res["info_v"]["n_batch"] == 4
