@@ -988,6 +988,13 @@ def _run_jvp(primals, tangents, *, output_fn, scheme, newton, solver, control):
     return res, t_res
 
 
+@eqx.filter_jit
+def _outputs_at(output_fn, model, loading, state):
+    """``output_fn(model, loading, state)`` as one compiled program (eager, each operation of
+    the output function would be compiled on its own)."""
+    return output_fn(model, loading, state)
+
+
 def run_chunked(model: Model, loading: Loading, times, output_fn: Callable, scheme=GeneralizedAlpha(),
                 newton: NewtonOptions = NewtonOptions(), solver: LinearSolver | None = None, chunk: int = 500,
                 progress: Callable | None = None, snapshot_times=(), control: StepControl | None = StepControl()):
@@ -1047,7 +1054,7 @@ def run_chunked(model: Model, loading: Loading, times, output_fn: Callable, sche
             break
     jax.block_until_ready(carry.state.q)
     run_s = _time.perf_counter() - t_start
-    out0 = output_fn(model, loading, s0)
+    out0 = _outputs_at(output_fn, model, loading, s0)
     outputs = jax.tree_util.tree_map(lambda a, *b: jnp.concatenate([a[None], *b]), out0, *outs)
     iterations = jnp.concatenate(its)
     sol = Solution(jnp.asarray(times[: iterations.shape[0] + 1]), outputs, iterations, jnp.concatenate(facs),
