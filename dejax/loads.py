@@ -122,6 +122,13 @@ def sample(histories, times) -> jax.Array:
     return jnp.stack([jnp.broadcast_to(h(times), times.shape) for h in histories], axis=1)
 
 
+@eqx.filter_jit
+def evaluate(history, times) -> jax.Array:
+    """``history(times)`` outside jit, as one compiled program per history structure and grid
+    length (evaluated eagerly, each of its operations would be compiled on its own)."""
+    return history(jnp.asarray(times, dtype=float))
+
+
 def read_csv(path) -> PiecewiseLinear:
     """A voltage history from a CSV file: a header line, then rows ``time (s), voltage (V)``,
     times strictly increasing; linear between rows, constant outside (``PiecewiseLinear``).

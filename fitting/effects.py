@@ -68,6 +68,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from dejax import integrate as it
+from dejax import loads
 from dejax import parameters
 from dejax.material import Material, equilibrium_energy
 
@@ -123,7 +124,7 @@ def slew_limited(history, rate: float, times, substeps: int = 16, knots: int = 4
     while k % m:
         k += 1
     fine = slew_grid(t, k)
-    phi = np.asarray(history(jnp.asarray(fine)), dtype=float)
+    phi = np.asarray(loads.evaluate(history, fine), dtype=float)
     v = np.empty_like(phi)
     v[0] = phi[0]
     step = rate * np.diff(fine)

@@ -506,7 +506,7 @@ def _run_params(problem, exp, tr, volt) -> dict:
     params = {k: v for k, v in problem.params.items() if k not in ("phi_max", "t_ramp", "freq", "phibar_max")}
     params.update(experiment=exp.name, experiment_file=str(exp.path), trace=tr.name)
     if volt is not None:
-        params["phi_max"] = float(np.max(np.abs(np.asarray(volt(jnp.asarray(tr.time))))))
+        params["phi_max"] = float(np.max(np.abs(np.asarray(loads.evaluate(volt, tr.time)))))
     if tr.frequency is not None:
         params["freq"] = tr.frequency
     return params

@@ -18,10 +18,9 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
-from dejax import cycles
+from dejax import cycles, loads
 
 from .traces import Trace
 
@@ -77,7 +76,7 @@ def _command(tr: Trace):
     (a loading-unloading test) unless its conditions name a frequency."""
     volt = tr.voltage_history
     if volt is not None or "stretch" not in tr.channels:
-        return np.asarray(volt(jnp.asarray(tr.time))), tr.frequency
+        return np.asarray(loads.evaluate(volt, tr.time)), tr.frequency
     span = float(tr.time[-1] - tr.time[0])
     return np.asarray(tr.channels["stretch"], dtype=float), tr.frequency or (1.0 / span if span > 0 else None)
 
