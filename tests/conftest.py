@@ -27,14 +27,14 @@ def pytest_configure(config):
         compile_cache.enable()
 
 
-# The test files that take longest (compilation-bound; measured 30-95 s of test time each
-# on 2 cores), longest first. They are handed to the workers first (``--dist loadfile``
-# follows the collection order), so that the short files fill the end and both workers
-# finish together.
-LONGEST_FIRST = ("test_integrate.py", "test_cli_e2e.py", "test_integrate_robust.py", "test_cli_ux.py",
-                 "test_diagnose.py", "test_linsolve.py", "test_material.py", "test_model.py",
-                 "test_verification_models.py", "test_forward.py", "test_scenarios.py", "test_sweep.py",
-                 "test_verification_cases.py", "test_verification_block_effects.py", "test_cli.py")
+# The test files that take longest (compilation-bound; measured 20-80 s of test time each
+# on 2 cores with a cold compilation cache), longest first. They are handed to the workers
+# first (``--dist loadfile`` follows the collection order), so that the short files fill the
+# end and both workers finish together.
+LONGEST_FIRST = ("test_cli_e2e.py", "test_integrate.py", "test_integrate_robust.py", "test_verification_models.py",
+                 "test_diagnose.py", "test_linsolve.py", "test_cli_ux.py", "test_scenarios.py",
+                 "test_verification_block_effects.py", "test_model.py", "test_forward.py", "test_sweep.py",
+                 "test_verification_cases.py", "test_cli.py", "test_material.py", "test_effects.py")
 
 
 def _file_rank(item):
