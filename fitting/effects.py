@@ -424,6 +424,10 @@ def prestretch_of(lam, mode: str):
     return jnp.stack([lam, lam, lam ** -2.0]) if mode == "biaxial" else jnp.stack([lam, lam ** -0.5, lam ** -0.5])
 
 
+_branch_stress = jax.jit(jax.grad(equilibrium_energy))
+"""P (3, 3) of the equilibrium branch at (F, E, material): one compiled program."""
+
+
 def _prestretch(p, v):
     # the film pre-stretched by lam long before the test (Material.pre: the equilibrium branch
     # sees F diag(pre), the relaxed viscous units F), held in the reference configuration by the
@@ -431,7 +435,7 @@ def _prestretch(p, v):
     # branch at F = I (the faces across the pre-stretch traction-free)
     unit = _prestress_unit(p, "prestretch")
     mat = eqx.tree_at(lambda m: m.pre, p.model.material, prestretch_of(v["lam"], p.info["prestretch_mode"]))
-    P = jax.grad(equilibrium_energy)(jnp.eye(3), jnp.zeros(3), mat)
+    P = _branch_stress(jnp.eye(3), jnp.zeros(3), mat)
     load = p.model.dead_load + (P[0, 0] - P[2, 2]) * unit
     return p.replace(model=eqx.tree_at(lambda md: (md.material, md.dead_load), p.model, (mat, load)))
 
