@@ -115,6 +115,7 @@ def slot_transform(dXdxi: jax.Array) -> jax.Array:
     return jax.scipy.linalg.block_diag(*[blocks[i] for i in range(N_NODES)])
 
 
+@jax.jit  # one compiled program per rule size when called eagerly (tests, verification)
 def element_reference_data(
     X_e: jax.Array, dXdxi_e: jax.Array, points: np.ndarray, weights: np.ndarray
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
