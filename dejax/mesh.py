@@ -182,19 +182,15 @@ def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(Fals
     if any(s < 1 for s in n):
         raise ValueError(f"mesh shape must be positive integers, got {shape}")
     lengths = tuple(jnp.asarray(l, dtype=float) for l in lengths)
-    nn = tuple(n[d] + (0 if periodic[d] else 1) for d in range(3))
-    grid = np.stack(np.meshgrid(*[np.arange(nn[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
+    periodic = tuple(bool(x) for x in periodic)
+    nn, grid, idx = _grid_indices(n, periodic)
     node_id = np.arange(len(grid)).reshape(nn)
-    # elements
-    ei = np.stack(np.meshgrid(*[np.arange(n[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
-    corners01 = ((NODE_CORNERS + 1) / 2).astype(np.int64)  # (8, 3) in {0, 1}
-    idx = ei[:, None, :] + corners01[None, :, :]  # (n_el, 8, 3) grid index (unwrapped)
     wrapped = np.stack([idx[..., d] % nn[d] if periodic[d] else idx[..., d] for d in range(3)], axis=-1)
     conn = node_id[wrapped[..., 0], wrapped[..., 1], wrapped[..., 2]]
 
     maps = None if potential_map is None else tuple(potential_map)
     params = tuple(jnp.asarray(x, dtype=float) for x in params)
-    X, dXdxi, potential = _mapped_nodes(node_map, maps, n, tuple(bool(x) for x in periodic), lengths, params)
+    X, dXdxi, potential = _mapped_nodes(node_map, maps, n, periodic, lengths, params)
 
     sets = {"all": np.arange(len(grid))}
     for d, name in enumerate("uvw"):
@@ -207,14 +203,22 @@ def structured_mesh(node_map, shape, lengths, potential_map=None, periodic=(Fals
     return Mesh(X, dXdxi, conn, potential, sets)
 
 
+def _grid_indices(n, periodic):
+    """The parameter grid of ``structured_mesh``: nodes per direction nn (3,), every node's
+    grid index (n_nodes, 3) and every element's corner grid indices (n_el, 8, 3), unwrapped
+    (a periodic direction's last layer not yet mapped onto its first)."""
+    nn = tuple(n[d] + (0 if periodic[d] else 1) for d in range(3))
+    grid = np.stack(np.meshgrid(*[np.arange(nn[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
+    ei = np.stack(np.meshgrid(*[np.arange(n[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
+    corners01 = ((NODE_CORNERS + 1) / 2).astype(np.int64)  # (8, 3) in {0, 1}
+    return nn, grid, ei[:, None, :] + corners01[None, :, :]
+
+
 @functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def _mapped_nodes(node_map, potential_map, n, periodic, lengths, params):
     """(X (n_nodes, 3), dXdxi (n_el, 8, 3, 3), potential) of ``structured_mesh``: one
     compiled program (not dozens of eagerly compiled operations), cached per map and shape."""
-    nn = tuple(n[d] + (0 if periodic[d] else 1) for d in range(3))
-    grid = np.stack(np.meshgrid(*[np.arange(nn[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
-    ei = np.stack(np.meshgrid(*[np.arange(n[d]) for d in range(3)], indexing="ij"), axis=-1).reshape(-1, 3)
-    idx = ei[:, None, :] + ((NODE_CORNERS + 1) // 2).astype(np.int64)[None, :, :]  # (n_el, 8, 3) unwrapped
+    _, grid, idx = _grid_indices(n, periodic)
     at = jnp.stack([grid[:, d] * (lengths[d] / n[d]) for d in range(3)], axis=1)
     X = jax.vmap(lambda p: node_map(*p, *params))(at)
     # dX/dxi at each element node, from the map at unwrapped parameters (exact)
