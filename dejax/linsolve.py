@@ -3,9 +3,9 @@
 The time stepper (``dejax.integrate``) factorizes the reduced iteration matrix T^T K T
 of the element matrices, carries the factorization through ``lax.scan`` and reuses it
 over Newton iterations and steps, and solves exactly (differentiably) for the implicit
-derivative of each step. ``DenseSolver`` (LU) serves small and fit-scale meshes,
-``SparseSolver`` (SuperLU or MKL Pardiso on the host) large ones; ``choose_solver`` picks
-one by name or by size.
+derivative of each step. ``DenseSolver`` (Cholesky, LU where the matrix is indefinite)
+serves small and fit-scale meshes, ``SparseSolver`` (SuperLU or MKL Pardiso on the host)
+large ones; ``choose_solver`` picks one by name or by size.
 """
 from __future__ import annotations
 
@@ -50,47 +50,83 @@ class LinearSolver(eqx.Module):
         ``Ke`` and ``rhs`` (jvp and transpose), for the implicit derivative of a step."""
 
 
+def _lu_from_cholesky(L):
+    """The LU storage (unit lower L_u below the diagonal, U on and above it) of A = L L^T:
+    L_u = L D^-1, U = D L^T with D = diag(L), so that A = L_u U without pivoting."""
+    d = jnp.diagonal(L)
+    return jnp.tril(L / d[None, :], -1) + jnp.triu(d[:, None] * L.T)
+
+
+def dense_factor(A):
+    """(lu (n, n), perm (n,)) with A[perm] = L U (L unit lower, both in ``lu``) for a
+    symmetric A: Cholesky where A is positive definite (half the work of LU: 5 ms against
+    10 ms at 720 unknowns), else LU with partial pivoting (an indefinite matrix: past an
+    instability). Under ``jax.vmap`` with a batched A both are computed (``lax.cond``)."""
+    L = jax.lax.linalg.cholesky(A, symmetrize_input=False)  # NaN where not positive definite
+    n = A.shape[-1]
+
+    def lu():
+        lu_, _, perm = jax.lax.linalg.lu(A)
+        return lu_, perm
+
+    return jax.lax.cond(jnp.all(jnp.isfinite(jnp.diagonal(L))),
+                        lambda: (_lu_from_cholesky(L), jnp.arange(n, dtype=jnp.int32)), lu)
+
+
+def dense_solve_factored(fac, rhs):
+    """x with A x = rhs from ``dense_factor(A)``: two triangular solves, rhs (n,) or (n, k)."""
+    # L y = b[perm], U x = y, written with the transposed factor: LAPACK reads its matrix
+    # column-major, which the transpose of a row-major (n, n) array is without a copy
+    # (solving with lu itself copied it, transposed, at every solve)
+    lut, perm = fac[0].T, fac[1]
+    b = rhs[perm]
+    b2 = b[:, None] if b.ndim == 1 else b
+    tri = jax.lax.linalg.triangular_solve
+    y = tri(lut, b2, left_side=True, lower=False, transpose_a=True, unit_diagonal=True)
+    x = tri(lut, y, left_side=True, lower=True, transpose_a=True)
+    return x[:, 0] if rhs.ndim == 1 else x
+
+
+def dense_solve(A, rhs):
+    """x with A x = rhs (A symmetric (n, n), rhs (n,)) by ``dense_factor``, differentiable in
+    A and rhs (``jax.lax.custom_linear_solve``: jvp, transpose, vmap)."""
+    fac = jax.lax.stop_gradient(dense_factor(A))
+    return jax.lax.custom_linear_solve(lambda x: A @ x, rhs, lambda _, b: dense_solve_factored(fac, b), symmetric=True)
+
+
 class DenseSolver(LinearSolver):
     """Dense solver of the assembled matrix: for small and fit-scale meshes (up to a few
     thousand unknowns). The iteration matrix is symmetric for every material option
-    (viscous dCv/dF and condensed pressures included; tests/test_model.py asserts it),
-    which ``SparseSolver.solve`` relies on; LU rather than Cholesky because it need not
-    be positive definite (past an instability, or with K = inf condensed).
+    (viscous dCv/dF and condensed pressures included; tests/test_model.py asserts it):
+    ``dense_factor`` factorizes it by Cholesky where it is positive definite and by LU
+    with partial pivoting where it is not (past an instability), both backward stable.
 
-    The factorization is LU (backward stable). An explicit inverse, tried for speed (a
-    solve becomes one matrix-vector product, 7x to 12x faster than XLA's CPU triangular
-    solves at 720-1,500 unknowns), lost the torsional strip 12x2x2 (K/mu = 4e5): Newton
-    failed its first increment (406 iterations, 17 cut-backs; with a symmetric diagonal
-    scaling no increment converged in 400 s; the cause is not isolated: the inverse's
-    backward error at the reference tangent is 5e-18). The scaled inverse
-    with one sweep of iterative refinement against the assembled matrix converged there
-    (same twist to 1e-9): a lever to measure on every robustness case before it
-    replaces LU."""
+    An explicit inverse, tried for speed (a solve becomes one matrix-vector product, 7x to
+    12x faster than XLA's CPU triangular solves at 720-1,500 unknowns), lost the torsional
+    strip 12x2x2 (K/mu = 4e5): Newton failed its first increment (406 iterations, 17
+    cut-backs; with a symmetric diagonal scaling no increment converged in 400 s; the cause
+    is not isolated: the inverse's backward error at the reference tangent is 5e-18). The
+    scaled inverse with one sweep of iterative refinement against the assembled matrix
+    converged there (same twist to 1e-9): a lever to measure on every robustness case
+    before it replaces the factorization."""
 
     def factor(self, model, Ke):
-        """(lu (n, n), perm (n,)): L and U in one array and the row permutation (A[perm] = L U).
+        """(lu (n, n), perm (n,)) of the assembled matrix (``dense_factor``).
 
         The permutation is formed here, once per factorization: ``jax.scipy.linalg.lu_solve``
         forms it from the pivots at every solve, an n-iteration loop of tiny kernels that
         cost more than both triangular solves together (tube 4x8x1: 720 iterations)."""
-        lu, _, perm = jax.lax.linalg.lu(mdl.assemble_dense(model, Ke))
-        return lu, perm
+        return dense_factor(mdl.assemble_dense(model, Ke))
 
     def empty(self, model):
         n = model.structure.n_free
         return jnp.eye(n), jnp.arange(n, dtype=jnp.int32)
 
     def solve_factored(self, model, fac, rhs):
-        # L y = b[perm], U x = y, written with the transposed factor: LAPACK reads its matrix
-        # column-major, which the transpose of a row-major (n, n) array is without a copy
-        # (solving with lu itself copied it, transposed, at every solve)
-        lut, perm = fac[0].T, fac[1]
-        tri = jax.lax.linalg.triangular_solve
-        y = tri(lut, rhs[perm][:, None], left_side=True, lower=False, transpose_a=True, unit_diagonal=True)
-        return tri(lut, y, left_side=True, lower=True, transpose_a=True)[:, 0]
+        return dense_solve_factored(fac, rhs)
 
     def solve(self, model, Ke, rhs):
-        return jnp.linalg.solve(mdl.assemble_dense(model, Ke), rhs)
+        return dense_solve(mdl.assemble_dense(model, Ke), rhs)
 
 
 # ----------------------------------------------------------------------------- sparse
@@ -281,7 +317,7 @@ def pardiso_available() -> bool:
 
 
 def choose_solver(structure, which: str = "auto") -> LinearSolver:
-    """``"dense"``, ``"sparse"`` (SuperLU), ``"pardiso"`` or ``"auto"``: dense LU up to 2,500
+    """``"dense"``, ``"sparse"`` (SuperLU), ``"pardiso"`` or ``"auto"``: dense up to 2,500
     reduced unknowns (measured faster there), SuperLU (COLAMD) above. ``"pardiso"`` (MKL,
     ``pip install -e ".[fast]"``) factorizes the paper's tube 8x faster, but whole runs
     measured slower on the torsional strip 24x4x2 (34 s vs 15 s: MKL and XLA threads on 2

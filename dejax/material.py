@@ -38,6 +38,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from .tensor import det3, gram3, inv3, mm3
 
@@ -431,12 +432,26 @@ def _solve_rate(F, base_inv, det_base, det_old, dt, mu, eta, Jm):
     return A
 
 
-@_solve_rate.defjvp
 def _solve_rate_jvp(primals, tangents):
+    """Implicit function theorem on the rate residual, differentiated only along the inputs that
+    carry a tangent (symbolic zeros skipped: the consistent tangent perturbs F alone)."""
     A = _solve_rate(*primals)
     g_A = jax.grad(_rate_residual, argnums=0)(A, *primals)
-    _, g_dot = jax.jvp(lambda *p: _rate_residual(A, *p), primals, tangents)
+    live = [i for i, t in enumerate(tangents) if not isinstance(t, SymbolicZero)]
+    if not live:
+        return A, jnp.zeros_like(A)
+
+    def residual(*xs):
+        args = list(primals)
+        for i, x in zip(live, xs):
+            args[i] = x
+        return _rate_residual(A, *args)
+
+    _, g_dot = jax.jvp(residual, [primals[i] for i in live], [tangents[i] for i in live])
     return A, -g_dot / g_A
+
+
+_solve_rate.defjvp(_solve_rate_jvp, symbolic_zeros=True)
 
 
 def _update_unit(F, base, base_inv, det_base, det_old, dt, mu, eta, Jm):

@@ -46,6 +46,43 @@ def test_sparse_solve_equals_dense_and_transposes(volumetric):
     assert np.linalg.norm(np.asarray(gs) - np.asarray(gd)) <= bound * np.linalg.norm(np.asarray(gd))
 
 
+def test_dense_factor_cholesky_where_positive_definite_lu_where_not():
+    """A symmetric positive definite matrix is factorized without pivoting (Cholesky: LU
+    with partial pivoting would swap its rows), an indefinite one with pivoting; both
+    solve to round-off, and the differentiable solve's jvp (in the matrix and the
+    right-hand side) and transpose equal those of jnp.linalg.solve."""
+    rng = np.random.default_rng(0)
+    L = np.tril(rng.standard_normal((12, 12))) + 3.0 * np.eye(12)
+    L[0, 0] = 0.01  # A[0, 0] = 1e-4 < |A[i, 0]| = 0.01 |L[i, 0]|: partial pivoting swaps rows
+    spd = L @ L.T
+    Q, _ = np.linalg.qr(rng.standard_normal((12, 12)))
+    indef = Q @ np.diag(np.linspace(-5.0, 7.0, 12) + 0.3) @ Q.T
+    assert np.linalg.eigvalsh(spd).min() > 0 and np.linalg.eigvalsh(indef).min() < 0
+    assert int(jax.lax.linalg.lu(jnp.asarray(spd))[2][0]) != 0  # LU would pivot
+    f = jax.jit(linsolve.dense_factor)
+    b = rng.standard_normal(12)
+    for A, pivoted in ((spd, False), (indef, True)):
+        lu, perm = f(jnp.asarray(A))
+        assert bool(np.any(np.asarray(perm) != np.arange(12))) == pivoted
+        x = np.asarray(linsolve.dense_solve_factored((lu, perm), jnp.asarray(b)))
+        assert np.linalg.norm(A @ x - b) <= 1e-13 * np.linalg.norm(A, 2) * np.linalg.norm(x)
+        X = np.asarray(linsolve.dense_solve_factored((lu, perm), jnp.asarray(np.stack([b, 2 * b], 1))))
+        np.testing.assert_allclose(X, np.stack([x, 2 * x], 1), rtol=1e-12)
+
+    solve = linsolve.dense_solve  # DenseSolver.solve of the assembled matrix
+    dA = rng.standard_normal((12, 12))
+    dA = dA + dA.T
+    c = rng.standard_normal(12)
+    for A in (spd, indef):
+        args, tans = (jnp.asarray(A), jnp.asarray(b)), (jnp.asarray(dA), jnp.asarray(c))
+        x, dx = jax.jvp(solve, args, tans)
+        x_ref, dx_ref = jax.jvp(jnp.linalg.solve, args, tans)
+        np.testing.assert_allclose(np.asarray(dx), np.asarray(dx_ref), rtol=1e-9)
+        g = jax.grad(lambda b_: c @ solve(args[0], b_))(args[1])
+        g_ref = jax.grad(lambda b_: c @ jnp.linalg.solve(args[0], b_))(args[1])
+        np.testing.assert_allclose(np.asarray(g), np.asarray(g_ref), rtol=1e-9)
+
+
 def test_sparse_simulation_matches_dense(problem):
     times = it.time_grid(0.1, 5e-3)
     out = {}
