@@ -456,6 +456,7 @@ def sweep_case_progress(stream):
 def sweep_handler(args) -> int:
     """``dejax sweep``: the rolled tube's cycle features per case, as a table (and JSON)."""
     from . import sweep
+    from .integrate import Status
 
     grid = {k: _sweep_values(getattr(args, k), "--" + k.replace("_", "-")) for k in sweep.SWEEPABLE
             if getattr(args, k) is not None}
@@ -476,7 +477,8 @@ def sweep_handler(args) -> int:
     cols = list(grid) + ["x_max", "x_min", "mean", "k_c", "loop_area"]
     print(" ".join(f"{c:>12}" for c in cols))
     for r in rows:
-        print(" ".join(f"{r.get(c, float('nan')):12.5g}" for c in cols) + ("" if r["ok"] else f"  FAILED ({r['status']})"))
+        print(" ".join(f"{r.get(c, float('nan')):12.5g}" for c in cols)
+              + ("" if r["ok"] else f"  FAILED: {Status(r['status']).message}"))
     print(f"# {info['n_cases']} cases, {info['method']}, {info['n_devices']} device(s), {info['wall_s']:.1f} s",
           file=sys.stderr)
     if args.json:

@@ -497,6 +497,12 @@ def update_all_units(F, Cv_old, dt, mat: Material):
         F, flow.base, flow.base_inv, flow.det_base, flow.det_old, flow.dt, mat.mu, mat.eta, mat.Jm)
 
 
+# The point laws below are jitted: JAX caches an inner jit's traced program by its
+# arguments' shapes, here those of one Gauss point, so every later simulation program of
+# the same material structure (another mesh, output, scan length or solver) reuses the
+# traced law and its vmapped and differentiated forms instead of tracing them again (the
+# consistent tangent is about a third of a simulation program's tracing). XLA inlines them.
+@jax.jit
 def stress_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     """First Piola-Kirchhoff stress at the end of a step and the updated Cv.
 
@@ -514,6 +520,7 @@ def stress_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     return P, Cv_new
 
 
+@jax.jit
 def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     """(P, D, Cv_new) with D = dP/dF (3, 3, 3, 3), the consistent tangent."""
 
@@ -525,6 +532,7 @@ def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     return P, D, Cv_new
 
 
+@jax.jit
 def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
     """Mixed form at one point: (P (3, 3) Pa, r_p = d psi / d p = J - 1 - p / K (-), Cv_new)."""
     Cv_new = update_all_units(F, Cv_old, dt, mat)
@@ -533,6 +541,7 @@ def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
     return P, r_p, Cv_new
 
 
+@jax.jit
 def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
     """Mixed form at one point: (P, r_p, D = dP/dF (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new).
 

@@ -221,8 +221,8 @@ def test_every_help_shows_defaults():
 
 def test_sweep_reports_progress_per_case(capsys):
     rc = cli.main(["sweep", "--freq", "10,20", "--cycles", "2", "--steps-per-cycle", "10", "--mesh", "1x4x1"])
-    err = capsys.readouterr().err
-    assert rc == 0, err
+    out, err = capsys.readouterr()
+    assert rc == 0, out + err
     assert "compiling the tube stepper (1x4x1 elements" in err
     lines = [line.split() for line in err.splitlines() if line.strip().startswith("case ")]
     assert [w[1] for w in lines] == ["1/2", "2/2"] and lines[-1][-1] == "0:00:00"
