@@ -276,14 +276,22 @@ def flow_step(model: Model, state, h, method: str = "bdf2"):
     return over_points(lambda Cv: backward_euler_flow_step(Cv, h), (0,))(state.Cv)
 
 
+@functools.lru_cache(maxsize=None)
+def _over_points_jit(fn, in_axes):
+    """``over_points(fn, in_axes)`` jitted, one per module-level point law: a later program
+    with the same number of points (another output, scan length, solver or step size)
+    reuses its traced and batched form (vmap's batching is redone for every batch size)."""
+    return jax.jit(over_points(fn, in_axes))
+
+
 def _per_point(fn):
     """``over_points`` for fn(F, E, Cv_old, dt, mat, wmax)."""
-    return over_points(fn, (0, 0, 0, None, None, 0))
+    return _over_points_jit(fn, (0, 0, 0, None, None, 0))
 
 
 def _per_point_mixed(fn):
     """``over_points`` for fn(F, E, Cv_old, dt, p, mat, wmax) (p per point)."""
-    return over_points(fn, (0, 0, 0, None, 0, None, 0))
+    return _over_points_jit(fn, (0, 0, 0, None, 0, None, 0))
 
 
 def initial_history(model: Model) -> jax.Array:
@@ -297,7 +305,7 @@ def _history(model: Model, wmax):
 
 def _mullins(model: Model, F, wmax):
     """(eta, wmax_new), each (n_el, n_gp): ``material.mullins_factor`` at every point."""
-    return over_points(mullins_factor, (0, 0, None))(F, _history(model, wmax), model.material)
+    return _over_points_jit(mullins_factor, (0, 0, None))(F, _history(model, wmax), model.material)
 
 
 def _softening(model: Model, F, wmax):
@@ -550,4 +558,4 @@ def kinetic_energy(model: Model, v) -> jax.Array:
 def gent_margins(model: Model, q, Cv) -> jax.Array:
     """(n_el, n_gp) smallest Gent margin H at each Gauss point (<= 0: limit reached)."""
     F = deformation_gradients(model, q)
-    return over_points(min_gent_margin, (0, 0, None))(F, Cv, model.material)
+    return _over_points_jit(min_gent_margin, (0, 0, None))(F, Cv, model.material)
