@@ -20,10 +20,10 @@ point 4), and which extra experiment would separate what the traces do not.
 3. Design: the Fisher information of ln p at the truth (J^T J / sigma^2, J the Jacobian of
    x_P) of the fitted traces: its least determined combinations (eigenvectors), and, in greedy
    rounds, one more trace of the same number of steps at 0.3, 1, 3, 100 or 300 Hz (50 kV), at
-   30 Hz and 25 kV, or a creep test (50 kV ramped in 20 ms, held 2 s): the largest |correlation| and the standard errors of ln p each would
-   leave. Each round adds the candidate that lowers the largest standard error most (the
-   worst-determined parameter), until it is below ``--target-se`` (``--starts 0``: the design
-   alone).
+   30 Hz and 25 kV, or a creep test (50 kV ramped in 20 ms, held 2 s): the largest
+   |correlation| and the standard errors of ln p each would leave. Each round adds the
+   candidate that lowers the largest standard error most (the worst-determined parameter),
+   until it is below ``--target-se`` (``--starts 0``: the design alone).
 """
 from __future__ import annotations
 
@@ -197,7 +197,8 @@ def main():
                 else creep_data(phi, a.cycles * a.steps_per_cycle))
         J = jacobian_at(fw, p_true, data)
         x = np.asarray(fw({k: jnp.asarray(v) for k, v in p_true.items()}, data))
-        info[f"{f:g} Hz, {phi / 1e3:g} kV" if f > 0 else f"creep {CREEP_HOLD:g} s, {phi / 1e3:g} kV"] = J.T @ J / (NOISE * np.max(np.abs(x))) ** 2
+        name = f"{f:g} Hz, {phi / 1e3:g} kV" if f > 0 else f"creep {CREEP_HOLD:g} s, {phi / 1e3:g} kV"
+        info[name] = J.T @ J / (NOISE * np.max(np.abs(x))) ** 2
     print(f"\ndesign (Fisher information of ln p at the truth, noise {100 * NOISE:g} % of each trace's peak; "
           f"{time.perf_counter() - tic:.0f} s): worst correlation and standard errors of ln p")
     print(f"{'experiment':<30} {'worst |corr|':>12} {'pair':>14} " + " ".join(f"{k:>7}" for k in FREE))

@@ -271,9 +271,8 @@ def flow_step(model: Model, state, h, method: str = "bdf2"):
     "bdf2" with the state's history (Cv_prev, h_prev) where it has one, else backward
     Euler (Eq. 39). Leaves (n_el, n_gp, n_units, ...)."""
     if method == "bdf2" and state.Cv_prev is not None and state.h_prev is not None:
-        fn = lambda Cv, Cv_prev: bdf2_flow_step(Cv, Cv_prev, h, state.h_prev)
-        return over_points(fn, (0, 0))(state.Cv, state.Cv_prev)
-    return over_points(lambda Cv: backward_euler_flow_step(Cv, h), (0,))(state.Cv)
+        return _over_points_jit(bdf2_flow_step, (0, 0, None, None))(state.Cv, state.Cv_prev, h, state.h_prev)
+    return _over_points_jit(backward_euler_flow_step, (0, None))(state.Cv, h)
 
 
 @functools.lru_cache(maxsize=None)
@@ -379,13 +378,25 @@ def internal_force_at(model: Model, q, E, Cv, p=None, wmax=None):
     mat = model.material
     soft = _softening(model, F, wmax)
     if model.structure.mixed:
-        grad = jax.grad(mixed_free_energy, argnums=0)
-        pg = pressure_at_points(model, p)
-        P = over_points(grad, (0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
+        P = _over_points_jit(_mixed_stress_at, (0, 0, 0, 0, None, 0))(F, E, Cv, pressure_at_points(model, p), mat, soft)
     else:
-        grad = jax.grad(free_energy, argnums=0)
-        P = over_points(grad, (0, 0, 0, None, None, 0))(F, E, Cv, mat, True, soft)
+        P = _over_points_jit(_stress_at, (0, 0, 0, None, 0))(F, E, Cv, mat, soft)
     return scatter_slots(model, _nodal(model, P))
+
+
+def _stress_at(F, E, Cv, mat, soft):
+    """P = d psi / dF (Pa) at one point, the viscous state Cv and the Mullins factor held."""
+    return jax.grad(free_energy)(F, E, Cv, mat, True, soft)
+
+
+def _mixed_stress_at(F, E, Cv, p, mat, soft):
+    """``_stress_at`` of the mixed form at the point's pressure p (Pa)."""
+    return jax.grad(mixed_free_energy)(F, E, Cv, p, mat, soft)
+
+
+def _energy_at(F, E, Cv, mat, soft):
+    """psi (J/m^3) at one point, penalty bulk terms included."""
+    return free_energy(F, E, Cv, mat, True, soft)
 
 
 class ElementSystem(eqx.Module):
@@ -544,9 +555,9 @@ def free_energy_total(model: Model, q, E, Cv, p=None, wmax=None) -> jax.Array:
     soft = _softening(model, F, wmax)
     if model.structure.mixed:
         pg = pressure_at_points(model, p)
-        psi = over_points(mixed_free_energy, (0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
+        psi = _over_points_jit(mixed_free_energy, (0, 0, 0, 0, None, 0))(F, E, Cv, pg, mat, soft)
     else:
-        psi = over_points(free_energy, (0, 0, 0, None, None, 0))(F, E, Cv, mat, True, soft)
+        psi = _over_points_jit(_energy_at, (0, 0, 0, None, 0))(F, E, Cv, mat, soft)
     return jnp.sum(model.dV * psi)
 
 
