@@ -77,6 +77,7 @@ def test_dense_factor_cholesky_where_positive_definite_lu_where_not():
         args, tans = (jnp.asarray(A), jnp.asarray(b)), (jnp.asarray(dA), jnp.asarray(c))
         x, dx = jax.jvp(solve, args, tans)
         x_ref, dx_ref = jax.jvp(jnp.linalg.solve, args, tans)
+        np.testing.assert_allclose(np.asarray(x), np.asarray(x_ref), rtol=1e-10)
         np.testing.assert_allclose(np.asarray(dx), np.asarray(dx_ref), rtol=1e-9)
         g = jax.grad(lambda b_: c @ solve(args[0], b_))(args[1])
         g_ref = jax.grad(lambda b_: c @ jnp.linalg.solve(args[0], b_))(args[1])
