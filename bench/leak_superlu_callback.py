@@ -40,7 +40,7 @@ def main():
     Ke = mdl.element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1.0, mdl.initial_pressure(m))[1]
     solver = linsolve.SparseSolver()
     vals = np.asarray(solver._values(m, Ke))
-    pat = linsolve._pattern(m.structure)
+    pat = linsolve._pattern(m.structure)  # model.Assembly: rows, cols, indptr
     b = np.random.default_rng(0).standard_normal(pat.n)
     print(f"nnz {pat.nnz}, RSS {rss_gb():.2f} GB")
     for k in range(40):

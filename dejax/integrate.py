@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import model as mdl
+from . import linsolve
 from .linsolve import DenseSolver, LinearSolver
 from .material import FlowStep, bulk_modulus
 from .model import Model
@@ -294,7 +295,7 @@ def initial_acceleration(model: Model, rhs, dense_limit: int = 4000):
     scale (element size for positions, 1 for gradients) is the inverse of its diagonal up
     to a constant, the preconditioner (tube 4x8x1: condition 2.9e9 -> 1.3e4)."""
     if model.structure.n_free <= dense_limit:
-        return jnp.linalg.solve(mdl.assemble_dense(model, mdl.mass_elements(model)), rhs)
+        return linsolve.spd_solve(mdl.assemble_dense(model, mdl.mass_elements(model)), rhs)
     op = lambda x: mdl.reduce(model, mdl.mass_apply(model, mdl.expand(model, x)))
     s2 = mdl.dof_scale(model) ** 2
     return jax.scipy.sparse.linalg.cg(op, rhs, M=lambda r: r * s2, tol=1e-12, maxiter=2000)[0]
@@ -431,7 +432,7 @@ def _anderson_mix(h: _Anderson, x, f, w, reset):
     G = A @ A.T
     lam = 1e-10 * jnp.max(jnp.diag(G)) + 1e-300
     G = jnp.where(valid[:, None] & valid[None, :], G, 0.0) + jnp.diag(jnp.where(valid, lam, 1.0))
-    gamma = jnp.where(valid, jnp.linalg.solve(G, A @ (f * w)), 0.0)
+    gamma = jnp.where(valid, linsolve.spd_solve(G, A @ (f * w)), 0.0)  # G: SPD by the regularization
     step = f - gamma @ (dX + dF)
     return step, _Anderson(dX, dF, count, x, f)
 

@@ -20,7 +20,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import model as mdl
-from .mesh import content_key
 
 
 class LinearSolver(eqx.Module):
@@ -94,6 +93,21 @@ def dense_solve(A, rhs):
     return jax.lax.custom_linear_solve(lambda x: A @ x, rhs, lambda _, b: dense_solve_factored(fac, b), symmetric=True)
 
 
+def spd_solve(A, rhs):
+    """x with A x = rhs for a symmetric positive definite A (n, n) (a mass matrix, a
+    regularized Gram matrix), rhs (n,): Cholesky and two triangular solves, differentiable
+    in A and rhs (``custom_linear_solve``). No pivoting loop in the compiled program, where
+    ``jnp.linalg.solve``'s LU forms its permutation in one."""
+    L = jax.lax.stop_gradient(jax.lax.linalg.cholesky(A, symmetrize_input=False))
+
+    def solve(_, b):
+        tri = jax.lax.linalg.triangular_solve
+        y = tri(L, b[:, None], left_side=True, lower=True)
+        return tri(L, y, left_side=True, lower=True, transpose_a=True)[:, 0]
+
+    return jax.lax.custom_linear_solve(lambda x: A @ x, rhs, solve, symmetric=True)
+
+
 class DenseSolver(LinearSolver):
     """Dense solver of the assembled matrix: for small and fit-scale meshes (up to a few
     thousand unknowns). The iteration matrix is symmetric for every material option
@@ -132,40 +146,9 @@ class DenseSolver(LinearSolver):
 # ----------------------------------------------------------------------------- sparse
 
 
-class _Pattern:
-    """Static sparsity pattern of the reduced matrix T^T K T (numpy, built once per structure).
-
-    rows, cols (nnz,): CSC-ordered unique entries; slot (n_el * 96 * 96,): for every element
-    matrix entry its position in the value array (nnz = dropped: constrained row/col)."""
-
-    def __init__(self, structure):
-        col = structure.col
-        e = col[structure.edofs]  # (n_el, 96) reduced index or -1
-        r = np.broadcast_to(e[:, :, None], (e.shape[0], 96, 96)).reshape(-1)
-        c = np.broadcast_to(e[:, None, :], (e.shape[0], 96, 96)).reshape(-1)
-        ok = (r >= 0) & (c >= 0)
-        n = structure.n_free
-        key = np.where(ok, c.astype(np.int64) * n + r, -1)
-        uniq, inv = np.unique(key[ok], return_inverse=True)
-        self.n = n
-        self.nnz = uniq.size
-        self.rows = (uniq % n).astype(np.int32)
-        self.cols = (uniq // n).astype(np.int32)
-        slot = np.full(key.shape, self.nnz, dtype=np.int64)
-        slot[ok] = inv
-        self.slot = slot
-        self.indptr = np.searchsorted(self.cols, np.arange(n + 1)).astype(np.int32)
-
-
-_PATTERNS: dict = {}
-
-
-def _pattern(structure) -> _Pattern:
-    key = content_key((structure.edofs, structure.col))
-    p = _PATTERNS.get(key)
-    if p is None:
-        p = _PATTERNS[key] = _Pattern(structure)
-    return p
+def _pattern(structure) -> mdl.Assembly:
+    """The static sparsity pattern of T^T K T (``model.assembly``: rows, cols, indptr in CSC order)."""
+    return mdl.assembly(structure)
 
 
 class _FactorCache:
@@ -178,7 +161,7 @@ class _FactorCache:
         self.entries: list = []
         self.factorizations = 0
 
-    def get(self, pattern: _Pattern, values: np.ndarray, backend: str):
+    def get(self, pattern: mdl.Assembly, values: np.ndarray, backend: str):
         key = (id(pattern), values.shape[0], hash(values.tobytes()))
         for k, f in self.entries:
             if k == key:
@@ -192,12 +175,19 @@ class _FactorCache:
         return f
 
 
+    def clear(self):
+        """Free every cached factorization (the next solve of any matrix factorizes)."""
+        for _, f in self.entries:
+            getattr(f, "free", lambda: None)()
+        self.entries = []
+
+
 _CACHE = _FactorCache()
 _HOST_THREAD = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="dejax-sparse")
 """Every host factorization, solve and eviction runs here (see ``SparseSolver._host_solve``)."""
 
 
-def _csc(pattern: _Pattern, values: np.ndarray):
+def _csc(pattern: mdl.Assembly, values: np.ndarray):
     import scipy.sparse as sp
 
     return sp.csc_matrix((values, pattern.rows, pattern.indptr), shape=(pattern.n, pattern.n))
@@ -223,7 +213,7 @@ class _PardisoFactor:
         self.solver.free_memory(everything=True)
 
 
-def _factorize(pattern: _Pattern, values: np.ndarray, backend: str):
+def _factorize(pattern: mdl.Assembly, values: np.ndarray, backend: str):
     A = _csc(pattern, values)
     if backend == "pardiso":
         import pypardiso  # optional
@@ -263,9 +253,7 @@ class SparseSolver(LinearSolver):
     backend: str = eqx.field(default="superlu", static=True)
 
     def _values(self, model, Ke):
-        p = _pattern(model.structure)
-        flat = Ke.reshape(-1)
-        return jax.ops.segment_sum(flat, jnp.asarray(p.slot), num_segments=p.nnz + 1)[: p.nnz]
+        return mdl.assemble_values(model, Ke)
 
     def factor(self, model, Ke):
         return self._values(model, Ke)
@@ -306,6 +294,12 @@ class SparseSolver(LinearSolver):
             return self.solve_factored(model, jax.lax.stop_gradient(values), b)
 
         return jax.lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+
+
+def clear_factorizations() -> None:
+    """Drop the sparse solver's cached host factorizations (a benchmark that times a
+    factorization calls this between repetitions of the same matrix)."""
+    _HOST_THREAD.submit(_CACHE.clear).result()
 
 
 def pardiso_available() -> bool:

@@ -208,3 +208,39 @@ def test_over_points_equals_the_nested_vmap():
     assert merged["P"].shape == (3, 4, 3, 3) and merged["n"].shape == (3, 4)
     np.testing.assert_array_equal(np.asarray(merged["P"]), np.asarray(nested["P"]))
     np.testing.assert_array_equal(np.asarray(merged["n"]), np.asarray(nested["n"]))
+
+
+def test_gathered_assembly_equals_the_scatter_loop():
+    """T^T K T, T^T r and the slot sums are gathers of precomputed entries (``mdl.assembly``);
+    on the torsional strip (clamped end: dropped coordinates; the far face's common axial
+    position: tied ones, summed) they equal numpy's unbuffered scatter-add over the elements, and the sparse values
+    (CSC order) are the dense matrix's entries at the pattern."""
+    from dejax import scenarios as sc
+
+    m = sc.torsional(0.5, 1.0, shape=(1, 2, 2)).model
+    s = m.structure
+    rng = np.random.default_rng(0)
+    n_el, n = s.edofs.shape[0], s.n_free
+    Ke = rng.standard_normal((n_el, 96, 96))
+    r = rng.standard_normal(s.n_dofs)
+    fe = rng.standard_normal((n_el, 32, 3))
+    assert np.any(np.bincount(s.col[s.col >= 0]) > 1) and np.any(s.col < 0)  # ties and constraints both present
+
+    ref = np.zeros((n + 1, n + 1))
+    idx = np.where(s.col >= 0, s.col, n)[s.edofs]
+    for e in range(n_el):
+        np.add.at(ref, (idx[e][:, None], idx[e][None, :]), Ke[e])
+    ref = ref[:n, :n]
+    np.testing.assert_allclose(np.asarray(mdl.assemble_dense(m, jnp.asarray(Ke))), ref, rtol=1e-13, atol=1e-13)
+    a = mdl.assembly(s)
+    values = np.asarray(mdl.assemble_values(m, jnp.asarray(Ke)))
+    np.testing.assert_allclose(values, ref[a.rows, a.cols], rtol=1e-13, atol=1e-13)
+    assert np.count_nonzero(ref) == a.nnz and np.all(np.diff(a.cols.astype(np.int64) * n + a.rows) > 0)
+
+    red = np.zeros(n + 1)
+    np.add.at(red, np.where(s.col >= 0, s.col, n), r)
+    np.testing.assert_allclose(np.asarray(mdl.reduce(m, jnp.asarray(r))), red[:n], rtol=1e-13, atol=1e-13)
+    slots = np.zeros((s.n_dofs // 3, 3))
+    np.add.at(slots, s.slots, fe)
+    np.testing.assert_allclose(np.asarray(mdl.scatter_slots(m, jnp.asarray(fe))), slots.reshape(-1), rtol=1e-13,
+                               atol=1e-13)
