@@ -205,7 +205,7 @@ def expand(model: Model, z: jax.Array) -> jax.Array:
 
 def reduce(model: Model, r: jax.Array) -> jax.Array:
     """T^T r: coordinate vector (n_dofs,) -> reduced vector (n_free,) (tied entries summed)."""
-    return _gather_sum(r, assembly(model.structure).reduce_entries)
+    return assembly(model.structure).reduce_entries(r)
 
 
 def element_coordinates(model: Model, q: jax.Array) -> jax.Array:
@@ -215,7 +215,7 @@ def element_coordinates(model: Model, q: jax.Array) -> jax.Array:
 
 def scatter_slots(model: Model, fe: jax.Array) -> jax.Array:
     """Sum element slot vectors (n_el, 32, 3) into a global vector (n_dofs,)."""
-    return _gather_sum(fe.reshape(-1, 3), assembly(model.structure).slot_entries).reshape(-1)
+    return assembly(model.structure).slot_entries(fe.reshape(-1, 3)).reshape(-1)
 
 
 def deformation_gradients(model: Model, q: jax.Array) -> jax.Array:
@@ -530,25 +530,39 @@ def _faces_load(X, dXdxi, conn, elems, traction, xi, weights, tangents):
     return f.reshape(-1)
 
 
-def _gather_plan(target: np.ndarray, n_targets: int, pad: int) -> np.ndarray:
-    """(n_targets, m) int32: for every target index t the source positions s with
-    target[s] == t, in increasing order, padded with ``pad`` (a zero appended to the
-    sources); target < 0: dropped. Summing the gathered sources replaces a scatter-add,
-    which XLA:CPU runs as a loop of one update per source entry (25-30 ns each)."""
-    src = np.flatnonzero(target >= 0)
-    order = np.argsort(target[src], kind="stable")
-    src, t = src[order], target[src[order]]
-    counts = np.bincount(t, minlength=n_targets)
-    plan = np.full((n_targets, max(int(counts.max(initial=0)), 1)), pad, dtype=np.int32)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    plan[t, np.arange(src.size) - start[t]] = src
-    return plan
+GATHER_WIDTH = 8
+"""Contributions gathered per target (``_GatherPlan``): 8 elements share a node of a
+hexahedral mesh; targets with more (tied coordinates) add their surplus by a scatter."""
 
 
-def _gather_sum(values: jax.Array, plan: np.ndarray) -> jax.Array:
-    """sum_k values[plan[t, k]] over the leading axis of ``values`` (a zero row appended for the padding)."""
-    padded = jnp.concatenate([values, jnp.zeros((1,) + values.shape[1:], values.dtype)])
-    return jnp.sum(padded[plan], axis=1)
+class _GatherPlan:
+    """How a scatter-add ``out[target[s]] += values[s]`` (target < 0: dropped) runs as a
+    gather: ``index`` (n_targets, m): the first m = min(max count, GATHER_WIDTH) sources of
+    every target in increasing order, padded with ``pad`` (a zero appended to the
+    sources), summed per row; the rest (``extra_source`` -> ``extra_target``: sources of
+    targets with more than m, e.g. a tied coordinate shared by a whole face) by a
+    scatter-add. XLA:CPU runs a scatter-add as a loop of one update per source entry
+    (25-30 ns each), a gather as a vectorized loop."""
+
+    def __init__(self, target: np.ndarray, n_targets: int, pad: int):
+        src = np.flatnonzero(target >= 0)
+        order = np.argsort(target[src], kind="stable")
+        src, t = src[order], target[src[order]]
+        counts = np.bincount(t, minlength=n_targets)
+        m = max(min(int(counts.max(initial=0)), GATHER_WIDTH), 1)
+        rank = np.arange(src.size) - np.concatenate([[0], np.cumsum(counts)[:-1]])[t]
+        first = rank < m
+        self.index = np.full((n_targets, m), pad, dtype=np.int32)
+        self.index[t[first], rank[first]] = src[first]
+        self.extra_source, self.extra_target = src[~first].astype(np.int32), t[~first].astype(np.int32)
+
+    def __call__(self, values: jax.Array) -> jax.Array:
+        """(n_targets,) + values.shape[1:]: the sums over the leading axis of ``values``."""
+        padded = jnp.concatenate([values, jnp.zeros((1,) + values.shape[1:], values.dtype)])
+        out = jnp.sum(padded[self.index], axis=1)
+        if self.extra_source.size:
+            out = out.at[self.extra_target].add(values[self.extra_source])
+        return out
 
 
 class Assembly:
@@ -556,9 +570,8 @@ class Assembly:
     (numpy, built once per structure: ``assembly(structure)``).
 
     rows, cols (nnz,): the entries in column-major (CSC) order; indptr (n_free + 1,);
-    entries (nnz, m): for every entry the positions in ``Ke.reshape(-1)`` (n_el * 96 * 96)
-    that sum into it (tied coordinates: several), padded with n_el * 96 * 96 (a zero);
-    dense_index (nnz,): the entry's row-major position in the dense (n_free, n_free) matrix.
+    entries: the sum of the positions in ``Ke.reshape(-1)`` (n_el * 96 * 96) that make up
+    every entry (a ``_GatherPlan``); dense_index (nnz,): the entry's row-major position in the dense (n_free, n_free) matrix.
     Gathering element matrix entries and summing them costs 1.1 ms on the tube 4x8x1
     (720 unknowns) where the scatter-add of the element matrices took 7-10 ms."""
 
@@ -577,11 +590,11 @@ class Assembly:
         self.rows = (uniq % n).astype(np.int32)
         self.cols = (uniq // n).astype(np.int32)
         self.indptr = np.searchsorted(self.cols, np.arange(n + 1)).astype(np.int32)
-        self.entries = _gather_plan(slot, self.nnz, n_el * 96 * 96)
+        self.entries = _GatherPlan(slot, self.nnz, n_el * 96 * 96)
         self.dense_index = (self.rows.astype(np.int64) * n + self.cols).astype(np.int32 if n * n < 2**31 else np.int64)
         # T^T r and the sum of element slot vectors, by gathers as well
-        self.reduce_entries = _gather_plan(structure.col, n, structure.n_dofs)
-        self.slot_entries = _gather_plan(structure.slots.reshape(-1), structure.n_dofs // 3, structure.slots.size)
+        self.reduce_entries = _GatherPlan(structure.col, n, structure.n_dofs)
+        self.slot_entries = _GatherPlan(structure.slots.reshape(-1), structure.n_dofs // 3, structure.slots.size)
 
 
 _ASSEMBLIES: dict = {}
@@ -599,7 +612,7 @@ def assembly(structure: Structure) -> Assembly:
 def assemble_values(model: Model, Ke: jax.Array) -> jax.Array:
     """(nnz,) entries of T^T K T in ``assembly(model.structure)``'s (CSC) order, from the
     element matrices Ke (n_el, 96, 96)."""
-    return _gather_sum(Ke.reshape(-1), assembly(model.structure).entries)
+    return assembly(model.structure).entries(Ke.reshape(-1))
 
 
 def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:

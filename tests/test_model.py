@@ -214,7 +214,9 @@ def test_gathered_assembly_equals_the_scatter_loop():
     """T^T K T, T^T r and the slot sums are gathers of precomputed entries (``mdl.assembly``);
     on the torsional strip (clamped end: dropped coordinates; the far face's common axial
     position: tied ones, summed) they equal numpy's unbuffered scatter-add over the elements, and the sparse values
-    (CSC order) are the dense matrix's entries at the pattern."""
+    (CSC order) are the dense matrix's entries at the pattern. The tied face's entries sum
+    more contributions than one gather row holds (``mdl.GATHER_WIDTH``): their surplus is
+    scattered, and checked here as well."""
     from dejax import scenarios as sc
 
     m = sc.torsional(0.5, 1.0, shape=(1, 2, 2)).model
@@ -236,6 +238,8 @@ def test_gathered_assembly_equals_the_scatter_loop():
     values = np.asarray(mdl.assemble_values(m, jnp.asarray(Ke)))
     np.testing.assert_allclose(values, ref[a.rows, a.cols], rtol=1e-13, atol=1e-13)
     assert np.count_nonzero(ref) == a.nnz and np.all(np.diff(a.cols.astype(np.int64) * n + a.rows) > 0)
+    # the tied coordinates have more contributions than one gather row holds: the surplus path ran
+    assert a.entries.extra_source.size > 0 and a.reduce_entries.extra_source.size > 0
 
     red = np.zeros(n + 1)
     np.add.at(red, np.where(s.col >= 0, s.col, n), r)
