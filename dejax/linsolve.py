@@ -174,7 +174,6 @@ class _FactorCache:
             getattr(old, "free", lambda: None)()  # MKL keeps a factorization until told to free it
         return f
 
-
     def clear(self):
         """Free every cached factorization (the next solve of any matrix factorizes)."""
         for _, f in self.entries:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import weakref
 
 import equinox as eqx
 import jax
@@ -552,9 +553,10 @@ class _GatherPlan:
         m = max(min(int(counts.max(initial=0)), GATHER_WIDTH), 1)
         rank = np.arange(src.size) - np.concatenate([[0], np.cumsum(counts)[:-1]])[t]
         first = rank < m
-        self.index = np.full((n_targets, m), pad, dtype=np.int32)
+        itype = np.int32 if pad < 2**31 else np.int64
+        self.index = np.full((n_targets, m), pad, dtype=itype)
         self.index[t[first], rank[first]] = src[first]
-        self.extra_source, self.extra_target = src[~first].astype(np.int32), t[~first].astype(np.int32)
+        self.extra_source, self.extra_target = src[~first].astype(itype), t[~first].astype(itype)
 
     def __call__(self, values: jax.Array) -> jax.Array:
         """(n_targets,) + values.shape[1:]: the sums over the leading axis of ``values``."""
@@ -598,14 +600,18 @@ class Assembly:
 
 
 _ASSEMBLIES: dict = {}
+_ASSEMBLY_OF = weakref.WeakKeyDictionary()  # structure object -> its Assembly (no hashing of arrays per call)
 
 
 def assembly(structure: Structure) -> Assembly:
     """The structure's ``Assembly``, built once per distinct connectivity and constraint split."""
-    key = content_key((structure.edofs, structure.col, structure.slots))
-    a = _ASSEMBLIES.get(key)
+    a = _ASSEMBLY_OF.get(structure)
     if a is None:
-        a = _ASSEMBLIES[key] = Assembly(structure)
+        key = content_key((structure.edofs, structure.col, structure.slots))
+        a = _ASSEMBLIES.get(key)
+        if a is None:
+            a = _ASSEMBLIES[key] = Assembly(structure)
+        _ASSEMBLY_OF[structure] = a
     return a
 
 
