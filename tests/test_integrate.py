@@ -385,7 +385,7 @@ def test_implicit_derivatives_hyperelastic(block):
 @pytest.mark.slow
 def test_implicit_derivatives_viscous():
     """The same with a viscous unit, derivatives with respect to mu_inf, eta_1 and the
-    voltage (about 1 min alone on 2 cores, 49 s measured: run with --runslow)."""
+    voltage (49 s alone on 2 cores: run with --runslow)."""
     _check_derivatives(
         Block(VISCOUS), ("mu_inf", "eta_1", "phi_m"), (_set_mu_inf, _set_eta0, _set_phi_m), (67e3, 3000.0, 12e3)
     )
