@@ -39,8 +39,8 @@ def main():
     E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
     Ke = mdl.element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1.0, mdl.initial_pressure(m))[1]
     solver = linsolve.SparseSolver()
-    vals = np.asarray(solver._values(m, Ke))
-    pat = linsolve._pattern(m.structure)  # model.Assembly: rows, cols, indptr
+    vals = np.asarray(mdl.assemble_values(m, Ke))
+    pat = mdl.assembly(m.structure)  # rows, cols, indptr, n, nnz
     b = np.random.default_rng(0).standard_normal(pat.n)
     print(f"nnz {pat.nnz}, RSS {rss_gb():.2f} GB")
     for k in range(40):

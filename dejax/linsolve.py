@@ -146,11 +146,6 @@ class DenseSolver(LinearSolver):
 # ----------------------------------------------------------------------------- sparse
 
 
-def _pattern(structure) -> mdl.Assembly:
-    """The static sparsity pattern of T^T K T (``model.assembly``: rows, cols, indptr in CSC order)."""
-    return mdl.assembly(structure)
-
-
 class _FactorCache:
     """Host-side LRU of factorizations keyed by a fingerprint of the matrix values, so that
     ``solve_factored(values, rhs)`` is a pure function of its inputs while a factorization
@@ -194,7 +189,7 @@ def _csc(pattern: mdl.Assembly, values: np.ndarray):
 
 def assemble_scipy(model, Ke):
     """Host (scipy CSC) copy of the reduced matrix T^T K T of element matrices Ke (n_el, 96, 96)."""
-    return _csc(_pattern(model.structure), np.asarray(SparseSolver()._values(model, Ke)))
+    return _csc(mdl.assembly(model.structure), np.asarray(mdl.assemble_values(model, Ke)))
 
 
 class _PardisoFactor:
@@ -251,14 +246,11 @@ class SparseSolver(LinearSolver):
 
     backend: str = eqx.field(default="superlu", static=True)
 
-    def _values(self, model, Ke):
+    def factor(self, model, Ke):
         return mdl.assemble_values(model, Ke)
 
-    def factor(self, model, Ke):
-        return self._values(model, Ke)
-
     def empty(self, model):
-        return jnp.zeros(_pattern(model.structure).nnz)
+        return jnp.zeros(mdl.assembly(model.structure).nnz)
 
     def _host_solve(self, pattern, values, rhs):
         # on one dedicated thread: XLA runs host callbacks on varying threads, and a SuperLU
@@ -275,15 +267,15 @@ class SparseSolver(LinearSolver):
         return np.stack([f(b) for b in rhs.reshape(-1, rhs.shape[-1])]).reshape(rhs.shape).astype(rhs.dtype)
 
     def solve_factored(self, model, values, rhs):
-        p = _pattern(model.structure)
+        p = mdl.assembly(model.structure)
         return jax.pure_callback(
             functools.partial(self._host_solve, p), jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), values, rhs,
             vmap_method="sequential",
         )
 
     def solve(self, model, Ke, rhs):
-        p = _pattern(model.structure)
-        values = self._values(model, Ke)
+        p = mdl.assembly(model.structure)
+        values = mdl.assemble_values(model, Ke)
         rows, cols = jnp.asarray(p.rows), jnp.asarray(p.cols)
 
         def matvec(x):
