@@ -412,15 +412,22 @@ def _solve_rate(F, base_inv, det_base, det_old, dt, mu, eta, Jm):
     """Scalar Newton for A (primal); derivatives by the implicit function theorem."""
     I1, I2, I3 = _flow_invariants(F, base_inv, det_base)
     je23 = _je23(I3, det_base, det_old)
-    H0 = gent_margin(I3 ** (-1.0 / 3.0) * I1, Jm)
-    A0 = (2.0 * mu / eta) * je23 / jnp.maximum(H0, 1e-3)
-    g = lambda A: _rate_residual_inv(A, I1, I2, I3, je23, dt, mu, eta, Jm)
-    g_and_dg = jax.value_and_grad(g)
+    i3 = I3 ** (-1.0 / 3.0)
+    c = (2.0 * mu / eta) * je23
+    A0 = c / jnp.maximum(gent_margin(i3 * I1, Jm), 1e-3)
 
     def body(carry):
+        # _rate_residual_inv and its derivative in A written out: one power per iteration
+        # (the iteration runs at every Gauss point, unit and Newton iteration)
         A, _, k = carry
-        r, d = g_and_dg(A)
-        step = r / d
+        s = dt * A
+        P = 1.0 + s * (I1 + s * (I2 + s * I3))
+        dP = I1 + s * (2.0 * I2 + 3.0 * s * I3)
+        ddP = 2.0 * I2 + 6.0 * s * I3
+        P23 = P ** (-2.0 / 3.0)
+        H = gent_margin(i3 * dP * P23, Jm)
+        dI1e = i3 * dt * P23 * (ddP - (2.0 / 3.0) * dP * dP / P)  # d(i3 dP P^-2/3)/dA
+        step = (A * H - c) / (H - A * dI1e / Jm)
         return A - step, jnp.abs(step), k + 1
 
     def cond(carry):
