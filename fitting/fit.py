@@ -126,6 +126,7 @@ def explain_nonfinite(forward, params: Mapping[str, float], target: Trace) -> st
 
 FORWARD_MODE_MAX_FREE = 4  # up to this many free parameters the fit differentiates in forward mode
 METHODS = OPTIMIZERS
+LM_MAX_STEP = math.log(10.0)  # Levenberg-Marquardt: at most a factor of ten per parameter and step
 """Optimizers of ``fit``: Levenberg-Marquardt (``fitting.least_squares``) or optax Adam then L-BFGS."""
 
 
@@ -607,7 +608,7 @@ def _fit_lm(forward, resid_jac, free, params0, p0, lo, hi, fixed_vals, targets, 
     say(f"[fit] compiling the forward model and its Jacobian, first evaluation on {len(targets)} trace(s) ...")
     try:
         res = levenberg_marquardt(fun, np.log(p0), np.log(lo), np.log(hi), max_evals=max_evals,
-                                  ftol=max(tol, 1e-12), xtol=1e-6, callback=progress)
+                                  ftol=max(tol, 1e-12), xtol=1e-6, callback=progress, max_step=LM_MAX_STEP)
     except FloatingPointError:
         p_init = {k: float(params0[k]) for k in params0}
         why = "; ".join(explain_nonfinite(forward, p_init, t) for t in targets if t.name in failing)

@@ -9,7 +9,8 @@ minimizes ``|r(x)|^2`` over the box ``lower <= x <= upper``.
   ``r`` (a failed simulation) is a rejected trial: the damping grows and the step
   shortens.
 * A step solves ``(J^T J + lam D) dx = -J^T r``, ``D = diag(J^T J)`` (Marquardt's
-  scaling, floored), and is projected onto the box; ``lam`` follows Nielsen's rule
+  scaling, floored), again without the components that push against an active bound
+  (held there), and is projected onto the box; ``lam`` follows Nielsen's rule
   (``lam *= max(1/3, 1 - (2 rho - 1)^3)`` on success, doubling growth on failure) with
   ``rho`` the actual over the predicted reduction of the projected step.
 * Stops when the relative reduction of ``|r|^2`` of an accepted step, or the one the
@@ -63,6 +64,19 @@ def _split(out):
     return np.asarray(out, dtype=float), None
 
 
+def _damped_step(A, g, damping, x, lo, hi):
+    """The damped Gauss-Newton step -(A + diag(damping))^-1 g with the components that
+    push against an active bound held at zero (solved again without them), so that the
+    box does not clip a step computed as if they could move."""
+    dx = -np.linalg.solve(A + np.diag(damping), g)
+    held = ((x <= lo) & (dx < 0)) | ((x >= hi) & (dx > 0))
+    if held.any() and not held.all():
+        free = ~held
+        dx = np.zeros_like(dx)
+        dx[free] = -np.linalg.solve(A[np.ix_(free, free)] + np.diag(damping[free]), g[free])
+    return dx
+
+
 def levenberg_marquardt(
     fun: Callable,
     x0,
@@ -76,6 +90,7 @@ def levenberg_marquardt(
     lam0: float = 1e-3,
     callback: Callable | None = None,
     broyden: bool = False,
+    max_step: float = np.inf,
 ) -> LeastSquaresResult:
     """Minimize |fun(x)|^2 over lower <= x <= upper (see the module docstring).
 
@@ -108,7 +123,8 @@ def levenberg_marquardt(
         d = np.maximum(np.diag(A), 1e-12 * max(np.max(np.diag(A)), 1e-300))
         if lam is None:
             lam = lam0
-        dx = -np.linalg.solve(A + lam * np.diag(d), g)
+        dx = _damped_step(A, g, lam * d, x, lo, hi)
+        dx = np.clip(dx, -max_step, max_step)
         x_new = np.clip(x + dx, lo, hi)
         step = x_new - x
         if np.max(np.abs(step)) <= xtol * (1.0 + np.max(np.abs(x))):

@@ -51,3 +51,30 @@ def test_levenberg_marquardt_on_a_nonlinear_problem_with_bounds_and_failures():
     assert n_fd[True] < n_fd[False]
     with pytest.raises(FloatingPointError):
         levenberg_marquardt(lambda x: np.full(3, np.inf), [1.0], [0.0], [2.0], jacobian=lambda x, r: np.ones((3, 1)))
+
+
+def test_a_component_held_at_its_bound_does_not_spoil_the_step_of_the_others():
+    # r = (x0 - 2, 10 (x1 - x0)) with x0 <= 1: the minimum is (1, 1) with |r|^2 = 1. A step
+    # solved as if x0 could move and then clipped moves x1 towards 2 and is rejected (50
+    # evaluations without converging, measured); solved without x0 it lands at once.
+    def fun(x):
+        return np.array([x[0] - 2.0, 10.0 * (x[1] - x[0])]), np.array([[1.0, 0.0], [-10.0, 10.0]])
+
+    res = levenberg_marquardt(fun, [1.0, 0.0], [-5.0, -5.0], [1.0, 5.0], max_evals=50, ftol=1e-14, xtol=1e-12)
+    assert res.converged and res.n_evals <= 6
+    np.testing.assert_allclose(res.x, [1.0, 1.0], atol=1e-9)
+    assert abs(res.cost - 1.0) < 1e-12
+
+
+def test_max_step_keeps_a_barely_seen_parameter_from_jumping_to_the_bound():
+    # x1 moves r by 1e-7 sin(x1): Marquardt's scaling sends it across the box in one step
+    # (to the bound at -20); with steps of at most ln 10 it walks to the minimum at -pi/2.
+    def fun(x):
+        r = np.array([x[0] - 1.0, 1e-7 * np.sin(x[1]) + 1e-3])
+        return r, np.array([[1.0, 0.0], [0.0, 1e-7 * np.cos(x[1])]])
+
+    free = levenberg_marquardt(fun, [0.0, 0.3], [-20.0, -20.0], [20.0, 20.0], max_evals=50, ftol=1e-14, xtol=1e-12)
+    assert free.x[1] == -20.0
+    capped = levenberg_marquardt(fun, [0.0, 0.3], [-20.0, -20.0], [20.0, 20.0], max_evals=50, ftol=1e-14,
+                                 xtol=1e-12, max_step=np.log(10.0))
+    assert abs(capped.x[1] + np.pi / 2) < 1e-2 and abs(capped.x[0] - 1.0) < 1e-9
