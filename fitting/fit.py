@@ -126,8 +126,8 @@ def explain_nonfinite(forward, params: Mapping[str, float], target: Trace) -> st
 
 FORWARD_MODE_MAX_FREE = 4  # up to this many free parameters the fit differentiates in forward mode
 METHODS = OPTIMIZERS
-LM_MAX_STEP = math.log(10.0)  # Levenberg-Marquardt: at most a factor of ten per parameter and step
 """Optimizers of ``fit``: Levenberg-Marquardt (``fitting.least_squares``) or optax Adam then L-BFGS."""
+LM_MAX_STEP = math.log(10.0)  # Levenberg-Marquardt: at most a factor of ten per parameter and step
 
 
 def _common_shapes(targets) -> dict:

@@ -13,6 +13,11 @@ minimizes ``|r(x)|^2`` over the box ``lower <= x <= upper``.
   (held there), and is projected onto the box; ``lam`` follows Nielsen's rule
   (``lam *= max(1/3, 1 - (2 rho - 1)^3)`` on success, doubling growth on failure) with
   ``rho`` the actual over the predicted reduction of the projected step.
+* ``max_step`` bounds every component of a step (a box trust region around x; ``fit``
+  passes ln 10 for its log parameters: at most a factor of ten per step). Without it a
+  parameter the residuals barely see (a viscous unit relaxed within the first step: its
+  column of J near zero, Marquardt's scaling floored) takes a step as large as the box
+  and lands at the opposite bound, in another model.
 * Stops when the relative reduction of ``|r|^2`` of an accepted step, or the one the
   linear model predicts for the next step, is below ``ftol``, the step is below ``xtol``
   (inf-norm), the projected gradient is below ``gtol``, or after ``max_evals``
