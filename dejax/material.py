@@ -382,12 +382,22 @@ def _flow_invariants(F, base_inv, det_base):
     return I1, I2, I3
 
 
-def _rate_residual_inv(A, I1, I2, I3, je23, dt, mu, eta, Jm):
-    """A H(Cv(A)) - (2 mu / eta) Je^(-2/3) from the invariants of base^-1 C."""
+def _rate_margin(A, I1, I2, I3, i3, dt, Jm):
+    """(H, dH/dA): the Gent margin of Cv(A), H = 1 - (i3 P'(s) P(s)^(-2/3) - 3) / Jm with
+    s = dt A and i3 = I3^(-1/3), and its slope, written out with one power (the local
+    Newton runs at every Gauss point, unit and Newton iteration)."""
     s = dt * A
     P = 1.0 + s * (I1 + s * (I2 + s * I3))
     dP = I1 + s * (2.0 * I2 + 3.0 * s * I3)
-    H = gent_margin(I3 ** (-1.0 / 3.0) * dP * P ** (-2.0 / 3.0), Jm)
+    ddP = 2.0 * I2 + 6.0 * s * I3
+    P23 = P ** (-2.0 / 3.0)
+    dI1e = i3 * dt * P23 * (ddP - (2.0 / 3.0) * dP * dP / P)  # d(i3 dP P^-2/3)/dA
+    return gent_margin(i3 * dP * P23, Jm), -dI1e / Jm
+
+
+def _rate_residual_inv(A, I1, I2, I3, je23, dt, mu, eta, Jm):
+    """A H(Cv(A)) - (2 mu / eta) Je^(-2/3) from the invariants of base^-1 C."""
+    H, _ = _rate_margin(A, I1, I2, I3, I3 ** (-1.0 / 3.0), dt, Jm)
     return A * H - (2.0 * mu / eta) * je23
 
 
@@ -417,17 +427,10 @@ def _solve_rate(F, base_inv, det_base, det_old, dt, mu, eta, Jm):
     A0 = c / jnp.maximum(gent_margin(i3 * I1, Jm), 1e-3)
 
     def body(carry):
-        # _rate_residual_inv and its derivative in A written out: one power per iteration
-        # (the iteration runs at every Gauss point, unit and Newton iteration)
+        # the residual A H - c of _rate_residual_inv and its slope H + A dH/dA
         A, _, k = carry
-        s = dt * A
-        P = 1.0 + s * (I1 + s * (I2 + s * I3))
-        dP = I1 + s * (2.0 * I2 + 3.0 * s * I3)
-        ddP = 2.0 * I2 + 6.0 * s * I3
-        P23 = P ** (-2.0 / 3.0)
-        H = gent_margin(i3 * dP * P23, Jm)
-        dI1e = i3 * dt * P23 * (ddP - (2.0 / 3.0) * dP * dP / P)  # d(i3 dP P^-2/3)/dA
-        step = (A * H - c) / (H - A * dI1e / Jm)
+        H, dH = _rate_margin(A, I1, I2, I3, i3, dt, Jm)
+        step = (A * H - c) / (H + A * dH)
         return A - step, jnp.abs(step), k + 1
 
     def cond(carry):
