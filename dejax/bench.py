@@ -54,6 +54,15 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _peak_device_mb() -> float:
+    """The accelerator's peak memory in use by this process so far (MB); NaN on the CPU or
+    where the backend keeps no statistics."""
+    if jax.default_backend() == "cpu":
+        return float("nan")
+    stats = jax.devices()[0].memory_stats() or {}
+    return stats.get("peak_bytes_in_use", float("nan")) / 2**20
+
+
 REFERENCE_DT = 1e-4
 REFERENCE_TOL = 1e-10
 # Defaults of the tube cases: with the BDF2 flow update the deviation from the reference
@@ -132,6 +141,7 @@ def _run_case(name, problem, t_end, dt, max_steps, solver="auto", newton=it.Newt
         newton_max=int(iters.max()),
         factorizations=int(facs.sum()) if n == n_full else int(round(facs.sum() * n_full / n)),
         peak_mb=_peak_rss_mb(),
+        device_peak_mb=_peak_device_mb(),
         status=int(sol.status),
         dt=float(dt),
         newton_tol=float(newton.tol),
@@ -200,8 +210,8 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False, 
     return dict(case=f"{name} 12 params, tube {'x'.join(map(str, shape))}", coordinates=None, unknowns=None,
                 solver="DenseSolver", steps=n_full, steps_run=n, compile_s=compile_s, run_s=grad_s * scale,
                 projected=n < n_full, steps_per_s=n / grad_s, newton_mean=float("nan"), newton_max=0,
-                factorizations=0, peak_mb=_peak_rss_mb(), status=0, ratio_to_forward=grad_s / fwd_s,
-                gradient=grad.tolist())
+                factorizations=0, peak_mb=_peak_rss_mb(), device_peak_mb=_peak_device_mb(), status=0,
+                ratio_to_forward=grad_s / fwd_s, gradient=grad.tolist())
 
 
 S1_SHAPES = ((4, 8, 1), (6, 10, 2), (8, 12, 2), (10, 16, 3), (12, 20, 4))
@@ -396,6 +406,10 @@ def format_table(rows) -> str:
     lines.append("* projected from the steps run (rate x steps); Newton = iterations per step mean/max; deviation "
                  "(--reference) = max |x_P - x_P,ref| / peak |x_P,ref| against dt = 1e-4 s, Newton to 1e-10, over the "
                  "steps run; F1, D1: run s = wall time of the whole command (start-up and compilation included)")
+    on_device = [r for r in rows if np.isfinite(r.get("device_peak_mb", float("nan")))]
+    if on_device:
+        lines.append(f"on {jax.devices()[0].device_kind}: peak MB = host memory; the accelerator's peak memory so far: "
+                     + ", ".join(f"{r['case'].split()[0]} {r['device_peak_mb']:.0f} MB" for r in on_device))
     return "\n".join(lines)
 
 

@@ -306,7 +306,8 @@ def choose_solver(structure, which: str = "auto") -> LinearSolver:
     reduced unknowns (measured faster there), SuperLU (COLAMD) above. ``"pardiso"`` (MKL,
     ``pip install -e ".[fast]"``) factorizes the paper's tube 8x faster, but whole runs
     measured slower on the torsional strip 24x4x2 (34 s vs 15 s: MKL and XLA threads on 2
-    cores), so it is not the default."""
+    cores), so it is not the default. On a GPU (any non-CPU backend) ``"auto"`` is dense up
+    to ``DENSE_MAX_ACCELERATOR`` unknowns."""
     if which == "dense":
         return DenseSolver()
     if which == "sparse":
@@ -315,4 +316,13 @@ def choose_solver(structure, which: str = "auto") -> LinearSolver:
         return SparseSolver("pardiso")
     if which != "auto":
         raise ValueError(f"linear solver must be auto, dense, sparse or pardiso; got {which!r}")
+    if jax.default_backend() != "cpu":
+        # on an accelerator the dense factorization stays on the device (the sparse solvers
+        # run on the host, a round trip per solve): up to DENSE_MAX_ACCELERATOR unknowns
+        return DenseSolver() if structure.n_free <= DENSE_MAX_ACCELERATOR else SparseSolver()
     return DenseSolver() if structure.n_free <= 2500 else SparseSolver()
+
+
+DENSE_MAX_ACCELERATOR = 40_000
+"""Largest reduced system ``choose_solver("auto")`` factorizes densely on a GPU: 12.8 GB
+per copy of the matrix in float64 (the paper's tube 12x20x4 has 15,600 unknowns: 1.9 GB)."""
