@@ -101,6 +101,21 @@ def test_choose_solver():
         linsolve.choose_solver(s, "magic")
 
 
+def test_choose_solver_on_an_accelerator(monkeypatch):
+    """On a GPU "auto" stays dense (on the device) up to DENSE_MAX_ACCELERATOR unknowns,
+    the paper's tube 12x20x4 (14,100) included, where the CPU takes the host's sparse solver;
+    an explicit choice is kept."""
+    from types import SimpleNamespace
+
+    tube, huge = SimpleNamespace(n_free=14_100), SimpleNamespace(n_free=linsolve.DENSE_MAX_ACCELERATOR + 1)
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    assert isinstance(linsolve.choose_solver(tube), linsolve.SparseSolver)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert isinstance(linsolve.choose_solver(tube), linsolve.DenseSolver)
+    assert isinstance(linsolve.choose_solver(huge), linsolve.SparseSolver)
+    assert isinstance(linsolve.choose_solver(tube, "sparse"), linsolve.SparseSolver)
+
+
 @pytest.mark.slow
 def test_grad_through_sparse_solver_viscous_matches_finite_differences():
     """Reverse mode through the sparse path on a viscous model: custom_linear_solve with
