@@ -293,9 +293,15 @@ def initial_acceleration(model: Model, rhs, dense_limit: int = 4000):
     """Solve T^T M T a = rhs (n_free,): dense up to ``dense_limit`` unknowns, above it by
     matrix-free conjugate gradients (the reduced mass matrix is SPD); the squared dof
     scale (element size for positions, 1 for gradients) is the inverse of its diagonal up
-    to a constant, the preconditioner (tube 4x8x1: condition 2.9e9 -> 1.3e4)."""
+    to a constant, the preconditioner (tube 4x8x1: condition 2.9e9 -> 1.3e4).
+
+    The dense path factorizes as the Newton iteration does (``linsolve.dense_solve``:
+    Cholesky, LU where Cholesky reports the matrix not positive definite): in about one
+    test-suite run in three under jaxlib 0.10.2 one simulation's initial acceleration came
+    out NaN from the Cholesky-only solve of this SPD matrix, its first step then failing
+    (cause below jax not found; the same program's next run was right)."""
     if model.structure.n_free <= dense_limit:
-        return linsolve.spd_solve(mdl.assemble_dense(model, mdl.mass_elements(model)), rhs)
+        return linsolve.dense_solve(mdl.assemble_dense(model, mdl.mass_elements(model)), rhs)
     op = lambda x: mdl.reduce(model, mdl.mass_apply(model, mdl.expand(model, x)))
     s2 = mdl.dof_scale(model) ** 2
     return jax.scipy.sparse.linalg.cg(op, rhs, M=lambda r: r * s2, tol=1e-12, maxiter=2000)[0]
@@ -845,7 +851,11 @@ class Solution:
         ``note`` and ``detail`` (the failure analysis)."""
         if self.ok:
             return None
-        detail = "; ".join(d for d in (note, self.detail) if d)
+        start = self.last_converged if int(self.fail_step) == 0 else None
+        bad_start = (start is not None and getattr(start, "qdd", None) is not None
+                     and not np.all(np.isfinite(np.asarray(start.qdd))))
+        detail = "; ".join(d for d in (note, self.detail, "the initial acceleration (M qdd = Q at the start) is not finite"
+                                       if bad_start else "") if d)
         return SimulationError(Status(int(self.status)), self.fail_time, int(self.fail_step) + 1, detail)
 
     def check(self) -> "Solution":
