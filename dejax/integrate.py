@@ -299,7 +299,7 @@ def initial_acceleration(model: Model, rhs, dense_limit: int = 4000):
     Cholesky, LU where Cholesky reports the matrix not positive definite): in about one
     test-suite run in three under jaxlib 0.10.2 one simulation's initial acceleration came
     out NaN from the Cholesky-only solve of this SPD matrix, its first step then failing
-    (cause below jax not found; the same program's next run was right)."""
+    (its root cause not found; the same program's next run was right)."""
     if model.structure.n_free <= dense_limit:
         return linsolve.dense_solve(mdl.assemble_dense(model, mdl.mass_elements(model)), rhs)
     op = lambda x: mdl.reduce(model, mdl.mass_apply(model, mdl.expand(model, x)))

@@ -325,4 +325,4 @@ def choose_solver(structure, which: str = "auto") -> LinearSolver:
 
 DENSE_MAX_ACCELERATOR = 40_000
 """Largest reduced system ``choose_solver("auto")`` factorizes densely on a GPU: 12.8 GB
-per copy of the matrix in float64 (the paper's tube 12x20x4 has 15,600 unknowns: 1.9 GB)."""
+per copy of the matrix in float64 (the paper's tube 12x20x4 has 14,100: 1.6 GB)."""
