@@ -846,12 +846,19 @@ class Solution:
         ``note`` and ``detail`` (the failure analysis)."""
         if self.ok:
             return None
-        start = self.last_converged if int(self.fail_step) == 0 else None
-        bad_start = (start is not None and getattr(start, "qdd", None) is not None
-                     and not np.all(np.isfinite(np.asarray(start.qdd))))
         detail = "; ".join(d for d in (note, self.detail, "the initial acceleration (M qdd = Q at the start) is not finite"
-                                       if bad_start else "") if d)
+                                       if self.start_not_finite else "") if d)
         return SimulationError(Status(int(self.status)), self.fail_time, int(self.fail_step) + 1, detail)
+
+    @property
+    def start_not_finite(self) -> bool:
+        """A concrete run that failed its first step from a non-finite initial acceleration
+        (False under tracing: a traced run cannot be inspected)."""
+        start = self.last_converged
+        if isinstance(self.status, jax.core.Tracer) or getattr(start, "qdd", None) is None:
+            return False
+        return (int(self.status) != 0 and int(self.fail_step) == 0
+                and not bool(np.all(np.isfinite(np.asarray(start.qdd)))))
 
     def check(self) -> "Solution":
         """Raise SimulationError naming what failed and when; return self otherwise."""
@@ -918,7 +925,7 @@ def simulate(model: Model, loading: Loading, times, output_fn: Callable, scheme=
     args = (model, loading, jnp.asarray(times[0], dtype=float), jnp.asarray(tt), jnp.asarray(active), state0)
     kw = dict(output_fn=output_fn, scheme=scheme, newton=newton, solver=solver, control=control)
     sol = _simulate_jit(*args, **kw)
-    if state0 is None and _start_not_finite(sol):
+    if state0 is None and sol.start_not_finite:
         warnings.warn("the run's initial acceleration came out non-finite and its first step failed: running it "
                       "once more (a nondeterministic fault seen with jaxlib 0.10.2 on the CPU, the same program "
                       "right when run again)", RuntimeWarning, stacklevel=2)
@@ -928,15 +935,6 @@ def simulate(model: Model, loading: Loading, times, output_fn: Callable, scheme=
     outputs = jax.tree_util.tree_map(lambda a: a[: n + 1], sol.outputs)
     return Solution(jnp.asarray(times), outputs, sol.iterations[:n], sol.factorizations[:n], sol.status, sol.fail_step,
                     sol.final, sol.cutbacks[:n], sol.dt_smallest, sol.last_converged)
-
-
-def _start_not_finite(sol: Solution) -> bool:
-    """A concrete run that failed its first step from a non-finite initial acceleration (False
-    under tracing: a traced run cannot be inspected)."""
-    if isinstance(sol.status, jax.core.Tracer) or sol.last_converged is None:
-        return False
-    return (int(sol.status) != 0 and int(sol.fail_step) == 0
-            and not bool(np.all(np.isfinite(np.asarray(sol.last_converged.qdd)))))
 
 
 @eqx.filter_jit
