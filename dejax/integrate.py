@@ -552,10 +552,12 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         dmodel, dctx = tangents[0], tangents[1]
         out = newton(model, ctx, z0, p0, fac, valid)
         z, p = out[0], out[1]
-        _, (dru, dg) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p)[:2], (model, ctx), (dmodel, dctx))
-        dz, dp = _implicit_solve(model, solver, _system(model, scheme, ctx, z, p), dru, dg)
-        _, dCv = jax.jvp(lambda m, c, z_, p_: _residual(m, scheme, c, z_, p_)[2], (model, ctx, z, p),
-                         (dmodel, dctx, dz, dp))
+        _, (dru, dg, dCv) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p), (model, ctx), (dmodel, dctx))
+        sys = _system(model, scheme, ctx, z, p)
+        dz, dp = _implicit_solve(model, solver, sys, dru, dg)
+        # Cv's change along (dz, dp) by the flow rule's derivative that the tangent already
+        # holds (Cv_new does not depend on p), rather than a second jvp of the residual
+        dCv = dCv + mdl.flow_tangent(model, sys.Cv_F, mdl.expand(model, dz))
         return out, (dz, dp, *(_zero_tangent(x) for x in out[2:6]), dCv)
 
     return newton

@@ -533,13 +533,20 @@ def stress_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
 @jax.jit
 def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
     """(P, D, Cv_new) with D = dP/dF (3, 3, 3, 3), the consistent tangent."""
+    return stress_tangent_update_and_flow_tangent(F, E, Cv_old, dt, mat, wmax)[:3]
+
+
+@jax.jit
+def stress_tangent_update_and_flow_tangent(F, E, Cv_old, dt, mat: Material, wmax=0.0):
+    """``stress_tangent_and_update`` and dCv_new/dF (n_units, 3, 3, 3, 3): the flow rule's
+    derivative, a by-product of the consistent tangent's forward pass (no extra work)."""
 
     def f(F_):
         P, Cv_new = stress_and_update(F_, E, Cv_old, dt, mat, wmax)
-        return P, (P, Cv_new)
+        return (P, Cv_new), (P, Cv_new)
 
-    D, (P, Cv_new) = jax.jacfwd(f, has_aux=True)(F)
-    return P, D, Cv_new
+    (D, Cv_F), (P, Cv_new) = jax.jacfwd(f, has_aux=True)(F)
+    return P, D, Cv_new, Cv_F
 
 
 @jax.jit
@@ -553,16 +560,18 @@ def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
 
 @jax.jit
 def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
-    """Mixed form at one point: (P, r_p, D = dP/dF (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new).
+    """Mixed form at one point: (P, r_p, D = dP/dF (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new,
+    dCv_new/dF (n_units, 3, 3, 3, 3)).
 
-    D is the consistent tangent (dCv/dF included); dr_p/dF = dP/dp (= cof F)."""
+    D is the consistent tangent (dCv/dF included); dr_p/dF = dP/dp (= cof F); Cv_new does
+    not depend on p. dCv_new/dF is a by-product of D's forward pass."""
 
     def f(F_, p_):
         P, r_p, Cv_new = mixed_stress_and_update(F_, E, Cv_old, dt, p_, mat, wmax)
-        return (P, r_p), (P, r_p, Cv_new)
+        return (P, r_p, Cv_new), (P, r_p, Cv_new)
 
-    ((D, P_p), (_, r_pp)), (P, r_p, Cv_new) = jax.jacfwd(f, argnums=(0, 1), has_aux=True)(F, p)
-    return P, r_p, D, P_p, r_pp, Cv_new
+    ((D, P_p), (_, r_pp), (Cv_F, _)), (P, r_p, Cv_new) = jax.jacfwd(f, argnums=(0, 1), has_aux=True)(F, p)
+    return P, r_p, D, P_p, r_pp, Cv_new, Cv_F
 
 
 @jax.jit

@@ -30,7 +30,7 @@ from . import element as el
 from .constraints import Constraints
 from .material import (Material, backward_euler_flow_step, bdf2_flow_step, bulk_modulus, free_energy, min_gent_margin,
                        mixed_free_energy, mixed_stress_and_update, mixed_tangent_and_update, stress_and_update,
-                       stress_tangent_and_update, mullins_factor)
+                       stress_tangent_update_and_flow_tangent, mullins_factor)
 from .mesh import Mesh, Static, content_key, reference_coordinates
 
 
@@ -403,7 +403,8 @@ class ElementSystem(eqx.Module):
     fe (n_el, 32, 3) forces; Ke (n_el, 96, 96) = d fe / d e; g (n_el, n_p) pressure
     residuals (m^3); kup (n_el, n_p, 96) = d fe / d p = d g / d e; kpp (n_el, n_p, n_p) =
     d g / d p (m^3/Pa: -int N N^T dV / K; 0 for K = inf); g, kup, kpp are None in the
-    displacement form. Cv_new: the viscous state implied by this iterate.
+    displacement form. Cv_new: the viscous state implied by this iterate; Cv_F (n_el, n_gp,
+    n_units, 3, 3, 3, 3) = d Cv_new / d F at fixed step data (``flow_tangent``).
     """
 
     fe: jax.Array
@@ -412,6 +413,7 @@ class ElementSystem(eqx.Module):
     kup: jax.Array | None
     kpp: jax.Array | None
     Cv_new: jax.Array
+    Cv_F: jax.Array
 
 
 def element_system(model: Model, q, E, Cv_old, dt, p=None, wmax=None) -> ElementSystem:
@@ -420,17 +422,23 @@ def element_system(model: Model, q, E, Cv_old, dt, p=None, wmax=None) -> Element
     n_el = F.shape[0]
     wmax = _history(model, wmax)
     if not model.structure.mixed:
-        P, D, Cv_new = _per_point(stress_tangent_and_update)(F, E, Cv_old, dt, model.material, wmax)
+        P, D, Cv_new, Cv_F = _per_point(stress_tangent_update_and_flow_tangent)(F, E, Cv_old, dt, model.material, wmax)
         Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G)
-        return ElementSystem(_nodal(model, P), Ke.reshape(n_el, 96, 96), None, None, None, Cv_new)
-    P, r_p, D, P_p, r_pp, Cv_new = _per_point_mixed(mixed_tangent_and_update)(
+        return ElementSystem(_nodal(model, P), Ke.reshape(n_el, 96, 96), None, None, None, Cv_new, Cv_F)
+    P, r_p, D, P_p, r_pp, Cv_new, Cv_F = _per_point_mixed(mixed_tangent_and_update)(
         F, E, Cv_old, dt, pressure_at_points(model, p), model.material, wmax)
     Ke = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", model.dV, model.G, D, model.G).reshape(n_el, 96, 96)
     N = _basis(model)
     kup = jnp.einsum("eg,gk,egaj,egij->ekai", model.dV, N, model.G, P_p).reshape(n_el, N.shape[1], 96)
     g = jnp.einsum("eg,gk,eg->ek", model.dV, N, r_p)
     kpp = jnp.einsum("eg,gk,gl,eg->ekl", model.dV, N, N, r_pp)
-    return ElementSystem(_nodal(model, P), Ke, g, kup, kpp, Cv_new)
+    return ElementSystem(_nodal(model, P), Ke, g, kup, kpp, Cv_new, Cv_F)
+
+
+def flow_tangent(model: Model, Cv_F, dq):
+    """(n_el, n_gp, n_units, 3, 3) change of the step's Cv_new for a coordinate change dq
+    (n_dofs,) at fixed step data: d Cv_new / d F : dF(dq), F being linear in q (Eq. 36)."""
+    return jnp.einsum("eguijkl,egkl->eguij", Cv_F, deformation_gradients(model, dq))
 
 
 AUGMENTED_BULK = 1e4
