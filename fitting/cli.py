@@ -18,6 +18,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from dejax import scenarios
@@ -26,6 +27,7 @@ from dejax.argtypes import int_at_least, nonneg, positive
 from . import diagnose as dg
 from . import effects as fx
 from . import experiment
+from . import placement
 from . import report
 from . import sensitivity as S
 from .data import load_experiment
@@ -83,9 +85,12 @@ def register_run_experiment(run_subparsers) -> argparse.ArgumentParser:
 def fit_handler(args) -> int:
     """``dejax fit``: fit the experiment, print the table, write --out."""
     try:
-        res = experiment.run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps,
-                                        lbfgs_steps=args.lbfgs_steps, n_steps=args.steps, max_points=args.max_points,
-                                        verbose=not args.quiet, plots=not args.no_plots, optimizer=args.optimizer)
+        device = _device(args, load_experiment(args.experiment), "fit")
+        with placement.placed(device):
+            res = experiment.run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps,
+                                            lbfgs_steps=args.lbfgs_steps, n_steps=args.steps,
+                                            max_points=args.max_points, verbose=not args.quiet,
+                                            plots=not args.no_plots, optimizer=args.optimizer)
     except (DataError, ValueError, KeyError, FileNotFoundError) as e:
         print(f"dejax fit: error: {e}", file=sys.stderr)
         return 2
@@ -123,8 +128,26 @@ def register_fit(subparsers) -> argparse.ArgumentParser:
                    help="subsample each trace to at most this many points (default: all)")
     p.add_argument("--no-plots", action="store_true", help="write fit.json and fitted.toml only")
     p.add_argument("--quiet", action="store_true", help="print only the final table")
+    _add_device_option(p)
     p.set_defaults(func=fit_handler)
     return p
+
+
+def _add_device_option(p) -> None:
+    p.add_argument("--device", choices=placement.DEVICE_CHOICES, default="auto",
+                   help="where the simulations run: auto (the host CPU for one-element problems when JAX's default "
+                        "backend is a GPU, which is slower for them; else JAX's default), cpu, or default")
+
+
+def _device(args, exp, verb: str):
+    """``placement.device_for`` the experiment and ``--device``; says so when it moves the run
+    to the host CPU on its own."""
+    choice = getattr(args, "device", "auto")
+    device = placement.device_for(placement.n_elements(exp), choice)
+    if device is not None and choice == "auto" and not getattr(args, "quiet", False):
+        print(f"dejax {verb}: a {placement.n_elements(exp)}-element problem: running on the host CPU, faster than "
+              f"the {jax.default_backend().upper()} for it (--device default to keep it there)")
+    return device
 
 
 # ----------------------------------------------------------------------------- sensitivity
@@ -241,6 +264,7 @@ def register_diagnose(subparsers) -> argparse.ArgumentParser:
                         "on each): the comma-separated PARAMS, or without a value the experiment's [fit] free "
                         "(c_d excepted)")
     p.add_argument("--quiet", action="store_true", help="no progress output (the table and verdict only)")
+    _add_device_option(p)
     p.set_defaults(func=diagnose_handler)
     return p
 
@@ -264,18 +288,19 @@ def diagnose_handler(args) -> int:
     """``dejax diagnose``: rank the candidate effects, print the table and verdict, write the report."""
     try:
         exp = load_experiment(args.experiment)
-        fwd, traces = dg.forward_from_experiment(exp)
-        if args.effects:
-            cands = [s.strip() for s in args.effects.split(",") if s.strip()]
-        else:
-            cands = list(exp.effects) or None
-        for c in cands or []:
-            fx.get(c)
-        start = fx.from_experiment(exp) if exp.effects else None
-        refit = refit_params(getattr(args, "refit", None), exp)
-        diag = dg.diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
-                           verbose=not getattr(args, "quiet", False), fit_top=args.fit_top,
-                           pairs=args.fit_pairs > 0, fit_pairs=args.fit_pairs, refit=refit)
+        with placement.placed(_device(args, exp, "diagnose")):  # the models built there too
+            fwd, traces = dg.forward_from_experiment(exp)
+            if args.effects:
+                cands = [s.strip() for s in args.effects.split(",") if s.strip()]
+            else:
+                cands = list(exp.effects) or None
+            for c in cands or []:
+                fx.get(c)
+            start = fx.from_experiment(exp) if exp.effects else None
+            refit = refit_params(getattr(args, "refit", None), exp)
+            diag = dg.diagnose(fwd, traces, cands, noise=args.noise, max_iter=args.max_iter, start=start,
+                               verbose=not getattr(args, "quiet", False), fit_top=args.fit_top,
+                               pairs=args.fit_pairs > 0, fit_pairs=args.fit_pairs, refit=refit)
     except (DataError, KeyError, ValueError, NotImplementedError, OSError) as e:
         print(f"dejax diagnose: error: {e}", file=sys.stderr)
         return 2
