@@ -59,6 +59,10 @@ def common_solver_args(p, dt: float):
     p.add_argument("--no-line-search", action="store_true", help="plain Newton steps (admissibility safeguard only)")
     p.add_argument("--dt-min", type=positive("--dt-min"), default=1e-6,
                    help="smallest step of the cut-back (s, default 1e-6); a failure at dt-min is final")
+    p.add_argument("--step-tol", type=positive("--step-tol"), default=None,
+                   help="error control: the largest local error estimate of a step (displacement error over "
+                        "element size, strain-like; e.g. 1e-4); --dt is then the output grid and the longest "
+                        "step, sub-steps (dt over a power of two) follow the estimate (generalized-alpha only)")
     p.add_argument("--quasi-static", action="store_true", help="no inertia (equilibrium at every step)")
     p.add_argument("--flow-update", default="bdf2", choices=("bdf2", "backward-euler"),
                    help="time discretization of the viscous flow rule: bdf2 (second order, default) or "
@@ -248,18 +252,23 @@ def run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
     bar.compiling(f"the {problem.name} stepper ({n_el} element{'s' if n_el != 1 else ''}, {chunk}-step chunks)",
                   cached=bool(jax.config.jax_compilation_cache_dir))
     snapshot_times = _frame_times(times, args.vtu_frames) if vtu else (float(times[-1]),)
+    scheme = problem.scheme(args.rho_inf, True if args.quasi_static else None, args.flow_update)
+    step_tol = getattr(args, "step_tol", None)
+    if step_tol is not None and not scheme.inertial:
+        raise ValueError("--step-tol (error control) needs inertia: its error estimate comes from the "
+                         "generalized-alpha accelerations, and this run is quasi-static")
     sol, snaps, compile_s, run_s = it.run_chunked(
         problem.model,
         problem.loading,
         times,
         problem.output_fn,
-        problem.scheme(args.rho_inf, True if args.quasi_static else None, args.flow_update),
+        scheme,
         it.NewtonOptions(tol=args.newton_tol, criterion=args.newton_criterion, line_search=not args.no_line_search),
         linsolve.choose_solver(problem.model.structure, solver),
         chunk=chunk,
         progress=bar,
         snapshot_times=snapshot_times,
-        control=it.StepControl(dt_min=args.dt_min),
+        control=it.StepControl(dt_min=args.dt_min, tol=step_tol),
     )
     sol = stability.classify_failure(problem.model, problem.loading, sol, args.dt_min)
     rows = len(sol.time) if sol.ok else int(sol.fail_step) + 1  # the last converged grid step
@@ -278,6 +287,7 @@ def run_problem(problem, t_end, dt, args, summary_outputs, solver="auto"):
         quasi_static=bool(args.quasi_static or problem.quasi_static),
         flow_update=args.flow_update,
         dt_min=args.dt_min,
+        **({} if step_tol is None else {"step_tol": float(step_tol)}),
         cutbacks=sol.n_cutbacks,
         dt_smallest=float(sol.dt_smallest),
         compile_s=compile_s,

@@ -243,15 +243,27 @@ class StepControl:
     ``max_substeps``: sub-steps a differentiated run may take in all (default: twice the
     number of user steps, at least 256); past it the derivatives are NaN.
     ``dt_min >= dt`` turns cut-back off.
+
+    ``tol`` (error control, generalized-alpha only; None = off): a converged sub-step is
+    also rejected, and retried at half its length, when its local error estimate
+    (``local_error``: strain-like, displacement error over element size) exceeds ``tol``;
+    it grows (doubles, up to the user's step) only when the estimate would stay below
+    ``tol`` at twice the length (its h^3 growth, with a safety factor of 2). The user's
+    grid is then an output grid and an upper bound of the step: give a coarse grid and a
+    tolerance instead of a fine dt. Sub-steps stay the user's step over a power of two,
+    so the factorization is reused while the step length holds.
     """
 
     dt_min: float = 1e-6
     grow_iterations: int = 5
     max_substeps: int | None = None
+    tol: float | None = None
 
     def __post_init__(self):
         if not self.dt_min > 0:
             raise ValueError(f"dt_min must be > 0, got {self.dt_min}")
+        if self.tol is not None and not self.tol > 0:
+            raise ValueError(f"StepControl.tol (local error tolerance) must be > 0, got {self.tol}")
 
 
 class Loading(eqx.Module):
@@ -666,6 +678,7 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
         return new, it, nfac, status, fac
 
     step.solver = solver
+    step.scheme = scheme
     return step
 
 
@@ -712,10 +725,27 @@ def _same_step(h, h_fac):
 _RETRY = (int(Status.NEWTON_FAILED), int(Status.NONFINITE))
 
 
+def local_error(model: Model, scheme, s0: State, s1: State, h) -> jax.Array:
+    """Local error estimate of a generalized-alpha step from s0 to s1 of length h (s):
+    max over the free coordinates of |(beta - 1/6) h^2 (a_1 - a_0)| / scale, the
+    displacement error of the step's Newmark update against a linear acceleration over the
+    step (Zienkiewicz and Xie 1991), ``a`` the algorithmic acceleration of Eqs. (31-32)
+    and scale the element size for positions, 1 for gradients (``model.dof_scale``):
+    a strain-like number."""
+    free = model.structure.free
+    e = (scheme.beta - 1.0 / 6.0) * h * h * (s1.a[free] - s0.a[free])
+    return jnp.max(jnp.abs(e) / mdl.dof_scale(model))
+
+
 def make_user_step(step, control: StepControl):
     """Return ``user_step(model, loading, carry, t1) -> (carry, iterations, factorizations,
     cutbacks)``: advance from carry.state.t to t1 in sub-steps, halving a failed sub-step
-    down to ``control.dt_min`` and doubling after easy ones (up to t1 - t_n)."""
+    (or, with ``control.tol``, an inaccurate one) down to ``control.dt_min`` and doubling
+    after easy ones (up to t1 - t_n). Cut-backs count both."""
+    scheme = step.scheme
+    if control.tol is not None and not scheme.inertial:
+        raise ValueError("StepControl.tol (error control) needs the generalized-alpha scheme: its local error "
+                         "estimate is made from the accelerations")
 
     def user_step(model, loading, c: Carry, t1):
         t0 = c.state.t
@@ -728,18 +758,29 @@ def make_user_step(step, control: StepControl):
 
         def body(x):
             c, its, nfac, ncut = x
-            h = jnp.minimum(jnp.minimum(c.h_next, dt), t1 - c.state.t)
-            t_new = jnp.where(t1 - (c.state.t + h) <= 1e-9 * dt, t1, c.state.t + h)
+            # the nominal sub-step h_nom stays the user's step over a power of two (a step
+            # shortened to land on t1 does not set the next one); a remainder below 1e-6 h is
+            # round-off of the sub-step times and joins this sub-step
+            h_nom = jnp.minimum(c.h_next, dt)
+            h = jnp.minimum(h_nom, t1 - c.state.t)
+            t_new = jnp.where(t1 - (c.state.t + h) <= 1e-6 * h, t1, c.state.t + h)
             h = t_new - c.state.t
             new, it, nf, st, fac = step(model, loading, c.state, t_new, c.fac, c.fac_valid & _same_step(h, c.h_fac))
-            ok = st == 0
-            retry = (~ok) & can_cut & ((st == _RETRY[0]) | (st == _RETRY[1])) & (0.5 * h >= control.dt_min)
+            converged = st == 0
+            can_halve = can_cut & (0.5 * h >= control.dt_min)
+            if control.tol is None:
+                ok, accurate_at_double = converged, True
+            else:  # an inaccurate sub-step is retried at half its length while it can be
+                err = local_error(model, scheme, c.state, new, h) / control.tol
+                ok = converged & ((err <= 1.0) | ~can_halve)
+                accurate_at_double = 8.0 * err <= 0.5
+            retry = ((~converged) & can_halve & ((st == _RETRY[0]) | (st == _RETRY[1]))) | (converged & ~ok)
             state = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, c.state)
-            grow = ok & (it <= control.grow_iterations)
-            h_next = jnp.where(ok, jnp.where(grow, 2.0 * h, h), 0.5 * h)
+            grow = ok & (it <= control.grow_iterations) & accurate_at_double
+            h_next = jnp.where(ok, jnp.where(grow, 2.0 * h_nom, h_nom), 0.5 * h)
             k = jnp.minimum(c.n_sub, c.schedule.shape[0] - 1)
             schedule = jnp.where(ok, c.schedule.at[k].set(t_new), c.schedule)
-            c = Carry(state, jnp.where(ok | retry, 0, st), c.fail_step, c.step_offset, fac, ok, h,
+            c = Carry(state, jnp.where(ok | retry, 0, st), c.fail_step, c.step_offset, fac, converged, h,
                       jnp.minimum(h_next, dt), jnp.where(ok, jnp.minimum(c.h_smallest, h), c.h_smallest), schedule,
                       c.n_sub + ok.astype(int), state)
             return c, its + it, nfac + nf, ncut + (~ok).astype(int)

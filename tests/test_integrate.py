@@ -206,6 +206,38 @@ def test_second_order_convergence(vib):
     assert np.all(np.abs(orders - 2.0) < 0.3), orders
 
 
+def test_error_control_converges_to_the_rk4_reference(vib):
+    """StepControl(tol): on a coarse output grid (P/8) the sub-steps follow the local error
+    estimate. z(9P/8) approaches the RK4 reference as tol falls (a second-order scheme with
+    h ~ tol^(1/3): error ~ tol^(2/3), a factor 4.6 per decade, less the rounding of h to
+    the user's step over a power of two), far below the coarse grid's own error."""
+    vf = vib.velocity()
+    T = 1.125 * vib.period
+    ref = vib.rk4(vf, T, 4000)
+    times = np.arange(10) * T / 9
+    errs, smallest = [], []
+    for tol in (None, 1e-3, 1e-4, 1e-5):
+        sol = it.simulate(vib.model, vib.load, times, _vib_out, scheme=it.GeneralizedAlpha(0.8),
+                          state0=vib.state0(vib.model, vf), control=it.StepControl(tol=tol)).check()
+        errs.append(np.linalg.norm((np.asarray(sol.outputs["z"][-1]) - ref)[vib.pos]))
+        smallest.append(float(sol.dt_smallest) / (T / 9))
+    print(f"\nerror control: |z - z_RK4| at 9P/8 {errs} m (no control, tol 1e-3, 1e-4, 1e-5), smallest sub-step "
+          f"{smallest} user steps")
+    assert smallest[0] == pytest.approx(1.0)
+    for s in smallest[1:]:  # sub-steps: the user's step over a power of two
+        assert s < 1.0 and np.log2(s) == pytest.approx(round(np.log2(s)), abs=1e-9)
+    ratios = np.array(errs[1:-1]) / np.array(errs[2:])
+    assert errs[1] < errs[0] / 2 and np.all(ratios > 2.5), (errs, ratios)
+
+
+def test_error_control_needs_generalized_alpha():
+    with pytest.raises(ValueError, match="must be > 0"):
+        it.StepControl(tol=0.0)
+    step = it.make_step(it.QuasiStatic())
+    with pytest.raises(ValueError, match="generalized-alpha"):
+        it.make_scan(step, _vib_out, it.StepControl(tol=1e-4))
+
+
 # --------------------------------------------------------------------------------------
 # 2.-4. energy
 # --------------------------------------------------------------------------------------
