@@ -240,8 +240,9 @@ class StepControl:
     step, recursively down to ``dt_min`` (s); after a sub-step that converges within
     ``grow_iterations`` iterations the next one is twice as long, up to the user's step.
     Outputs stay on the user's time grid; only a failure at ``dt_min`` is a failure.
-    ``max_substeps``: sub-steps a differentiated run may take in all (default: twice the
-    number of user steps, at least 256); past it the derivatives are NaN.
+    ``max_substeps``: sub-steps a differentiated run may take in all (default: the user
+    steps plus half as many, at least 128 more; with ``tol`` 8 per user step plus 128);
+    past it the derivatives are NaN.
     ``dt_min >= dt`` turns cut-back off.
 
     ``tol`` (error control, generalized-alpha only; None = off): a converged sub-step is
@@ -929,8 +930,10 @@ def time_grid(t_end: float, dt: float, t0: float = 0.0) -> np.ndarray:
     return np.linspace(t0, t_end, n + 1)
 
 
-def _default_max_substeps(n: int) -> int:
-    return n + max(128, n // 2)
+def _default_max_substeps(n: int, control: StepControl) -> int:
+    """Sub-steps a differentiated run of n user steps may replay: n + max(128, n / 2), and
+    8 n + 128 with error control (its sub-steps are the rule, not the exception)."""
+    return 8 * n + 128 if control.tol is not None else n + max(128, n // 2)
 
 
 def simulate(model: Model, loading: Loading, times, output_fn: Callable, scheme=GeneralizedAlpha(),
@@ -998,7 +1001,7 @@ def _run_fixed(model, loading, s0, times, active, *, output_fn, scheme, newton, 
     """Run over the grid ``times`` (m,), with cut-back where ``control`` allows; without
     ``control`` it is differentiated as it stands (a scan of implicitly differentiated steps)."""
     step = make_step(scheme, newton, solver)
-    budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0]))
+    budget = 0 if control is None else (control.max_substeps or _default_max_substeps(times.shape[0], control))
     carry = initial_carry(model, s0, step.solver, budget)
     run = make_scan(step, output_fn, control, remat=True)
     carry, (outs, its, nfac, ncut, last) = run(model, loading, carry, times, active)
