@@ -246,8 +246,9 @@ class StepControl:
     ``dt_min >= dt`` turns cut-back off.
 
     ``tol`` (error control, generalized-alpha only; None = off): a converged sub-step is
-    also rejected, and retried at half its length, when its local error estimate
-    (``local_error``: strain-like, displacement error over element size) exceeds ``tol``;
+    also rejected, and retried at half its length (down to ``dt_min``, where it is kept),
+    when its local error estimate (``local_error``: strain-like, displacement error over
+    element size) exceeds ``tol``;
     it grows (doubles, up to the user's step) only when the estimate would stay below
     ``tol`` at twice the length (its h^3 growth, with a safety factor of 2). The user's
     grid is then an output grid and an upper bound of the step: give a coarse grid and a
