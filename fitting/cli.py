@@ -85,9 +85,9 @@ def register_run_experiment(run_subparsers) -> argparse.ArgumentParser:
 def fit_handler(args) -> int:
     """``dejax fit``: fit the experiment, print the table, write --out."""
     try:
-        device = _device(args, load_experiment(args.experiment), "fit")
-        with placement.placed(device):
-            res = experiment.run_experiment(args.experiment, out=args.out, adam_steps=args.adam_steps,
+        exp = load_experiment(args.experiment)
+        with placement.placed(_device(args, exp, "fit")):
+            res = experiment.run_experiment(exp, out=args.out, adam_steps=args.adam_steps,
                                             lbfgs_steps=args.lbfgs_steps, n_steps=args.steps,
                                             max_points=args.max_points, verbose=not args.quiet,
                                             plots=not args.no_plots, optimizer=args.optimizer)
@@ -142,10 +142,10 @@ def _add_device_option(p) -> None:
 def _device(args, exp, verb: str):
     """``placement.device_for`` the experiment and ``--device``; says so when it moves the run
     to the host CPU on its own."""
-    choice = getattr(args, "device", "auto")
-    device = placement.device_for(placement.n_elements(exp), choice)
+    choice, elements = getattr(args, "device", "auto"), placement.n_elements(exp)
+    device = placement.device_for(elements, choice)
     if device is not None and choice == "auto" and not getattr(args, "quiet", False):
-        print(f"dejax {verb}: a {placement.n_elements(exp)}-element problem: running on the host CPU, faster than "
+        print(f"dejax {verb}: a {elements}-element problem: running on the host CPU, faster than "
               f"the {jax.default_backend().upper()} for it (--device default to keep it there)")
     return device
 

@@ -438,16 +438,17 @@ supports."""
 
 def run_experiment(path, out=None, adam_steps=None, lbfgs_steps=None, n_steps=None, max_points=None,
                    verbose=True, plots=True, optimizer=None):
-    """Load an experiment TOML, fit it, write ``out``/fit.json, the plots (``plots``) and
-    ``out``/fitted.toml (``fitting.fitted``); return the FitResult.
+    """Load an experiment TOML (``path``; or an already loaded ``fitting.data.Experiment``),
+    fit it, write ``out``/fit.json, the plots (``plots``) and ``out``/fitted.toml
+    (``fitting.fitted``); return the FitResult.
 
     ``optimizer``: "lm" or "adam-lbfgs" (default: the file's ``[fit] optimizer``, else "lm";
     "adam-lbfgs" when ``adam_steps`` or ``lbfgs_steps`` is given). ``[fit] max_iter`` bounds
     the evaluations of lm and the iterations of adam-lbfgs (half Adam, half L-BFGS)."""
-    from .data import load_experiment
+    from .data import Experiment, load_experiment
     from .fitted import write_fitted
 
-    exp = load_experiment(path)
+    exp = path if isinstance(path, Experiment) else load_experiment(path)
     fwd, params0, free, bounds, targets, holdout, opts = from_experiment(exp, n_steps=n_steps, max_points=max_points)
     max_iter = int(opts.get("max_iter", 40))
     if optimizer is None:
