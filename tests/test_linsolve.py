@@ -205,3 +205,88 @@ def test_every_solver_offers_the_linear_solver_interface():
         shape = lambda tree: jax.tree_util.tree_map(lambda a: (a.shape, a.dtype), tree)  # noqa: E731
         assert shape(solver.empty(m)) == shape(solver.factor(m, Ke)), which
     assert linsolve.SparseSolver("pardiso") != linsolve.SparseSolver()
+
+
+def _tube_matrix(shape=(4, 4, 1)):
+    """The condensed iteration matrix (CSC values, pattern) of a small rolled tube: tangent
+    plus a mass term, symmetric positive definite."""
+    m = scenarios.rolled("IV", 30.0, 50e3, shape=shape).model
+    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
+    _, Ke, _ = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
+    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    return np.asarray(mdl.assemble_values(m, Ke)), mdl.assembly(m.structure)
+
+
+def test_pardiso_cholesky_of_a_symmetric_positive_definite_matrix():
+    """MKL Pardiso factorizes the symmetric positive definite iteration matrix by Cholesky
+    (its upper triangle), one symbolic analysis shared by every factorization of the
+    pattern: solves (one and several right-hand sides) to the same backward error as
+    scipy's LU; a matrix that is not positive definite, or not symmetric, falls back to LU
+    and still solves; slots are released, so more factorizations than slots never fail."""
+    pytest.importorskip("pypardiso")
+    values, pattern = _tube_matrix()
+    A = linsolve._csc(pattern, values)
+    b = np.random.default_rng(0).standard_normal((pattern.n, 3))
+
+    def backward_error(A, x, b):
+        return np.linalg.norm(A @ x - b) / (np.linalg.norm(A.toarray(), 2) * np.linalg.norm(x))
+
+    f = linsolve._factorize(pattern, values, "pardiso")
+    assert isinstance(f, linsolve._PardisoCholesky)
+    x = f(b[:, 0])
+    assert x.shape == (pattern.n,) and backward_error(A, x, b[:, 0]) < 1e-14
+    X = f(b)
+    assert X.shape == b.shape and np.max(np.abs(X[:, 0] - x)) <= 1e-12 * np.max(np.abs(x))
+    assert backward_error(A, X[:, 2], b[:, 2]) < 1e-14
+    # a second matrix of the same pattern in another slot; the first still solves
+    g = linsolve._factorize(pattern, 2.0 * values, "pardiso")
+    assert isinstance(g, linsolve._PardisoCholesky) and g.slot != f.slot
+    assert np.max(np.abs(2.0 * g(b[:, 0]) - x)) <= 1e-9 * np.max(np.abs(x))
+    assert np.array_equal(f(b[:, 0]), x)
+    f.free(), g.free()
+
+    # indefinite (one diagonal entry negated): LU
+    diag = np.flatnonzero(pattern.rows == pattern.cols)
+    indef = values.copy()
+    indef[diag[diag.size // 2]] *= -1.0
+    f = linsolve._factorize(pattern, indef, "pardiso")
+    assert isinstance(f, linsolve._PardisoFactor)
+    assert backward_error(linsolve._csc(pattern, indef), f(b[:, 0]), b[:, 0]) < 1e-12
+    f.free()
+    # not symmetric (the largest off-diagonal entry changed, not its mirror): LU
+    off = np.flatnonzero(pattern.rows != pattern.cols)
+    unsym = values.copy()
+    unsym[off[np.argmax(np.abs(values[off]))]] *= 1.01
+    f = linsolve._factorize(pattern, unsym, "pardiso")
+    assert isinstance(f, linsolve._PardisoFactor)
+    assert backward_error(linsolve._csc(pattern, unsym), f(b[:, 0]), b[:, 0]) < 1e-12
+    f.free()
+
+    handle = linsolve._PARDISO[pattern]
+    for k in range(2 * handle.MAX_FACTORS):
+        linsolve._factorize(pattern, (1.0 + k) * values, "pardiso").free()
+    assert sorted(handle.free_slots) == list(range(1, handle.MAX_FACTORS + 1))
+
+
+def test_pardiso_solver_through_the_callback_equals_dense():
+    """``SparseSolver("pardiso")`` inside jit (host callback, factorization cache) solves the
+    tube's iteration matrix as the dense solver does, and a repeated solve reuses the
+    factorization."""
+    pytest.importorskip("pypardiso")
+    m = scenarios.rolled("IV", 30.0, 50e3, shape=(4, 4, 1)).model
+    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
+    _, Ke, _ = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
+    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    K = np.asarray(mdl.assemble_dense(m, Ke))
+    b = jnp.asarray(np.random.default_rng(1).standard_normal(m.structure.n_free))
+    solver = linsolve.SparseSolver("pardiso")
+    solve = jax.jit(lambda v, r: solver.solve_factored(m, v, r))
+    values = solver.factor(m, Ke)
+    linsolve.clear_factorizations()
+    before = linsolve._CACHE.factorizations
+    x1, x2 = np.asarray(solve(values, b)), np.asarray(solve(values, 2.0 * b))
+    assert linsolve._CACHE.factorizations == before + 1
+    xd = np.asarray(linsolve.DenseSolver().solve(m, Ke, b))
+    bound = 10 * np.linalg.cond(K) * np.finfo(float).eps
+    assert np.linalg.norm(x1 - xd) <= bound * np.linalg.norm(xd)
+    assert np.max(np.abs(x2 - 2.0 * x1)) <= 1e-12 * np.max(np.abs(x1))
