@@ -374,11 +374,9 @@ def _residual(model: Model, scheme, ctx: _StepContext, z, p):
 def _system(model: Model, scheme, ctx: _StepContext, z, p):
     """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
     q, E, h, _ = _step_terms(model, scheme, ctx, z)
-    sys = mdl.element_system(model, q, E, ctx.flow, h, p, ctx.state.wmax)
     bp, gp = scheme.matrix_coefficients(h)
-    if scheme.inertial:
-        sys = eqx.tree_at(lambda s: s.Ke, sys, sys.Ke + (bp + gp * model.damping) * mdl.mass_elements(model))
-    return sys
+    c = bp + gp * model.damping if scheme.inertial else None
+    return mdl.element_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
 
 
 def _shear_scale(model: Model):

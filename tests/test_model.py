@@ -248,3 +248,43 @@ def test_gathered_assembly_equals_the_scatter_loop():
     np.add.at(slots, s.slots, fe)
     np.testing.assert_allclose(np.asarray(mdl.scatter_slots(m, jnp.asarray(fe))), slots.reshape(-1), rtol=1e-13,
                                atol=1e-13)
+
+
+@pytest.mark.parametrize("volumetric, chunk", [("mixed", 3), ("displacement", 3), ("mixed", None)])
+def test_element_chunks_equal_the_whole_mesh(monkeypatch, volumetric, chunk):
+    """Large meshes evaluate the element system and forces a chunk of elements at a time
+    (``mdl.over_element_chunks``); with chunks forced on a 16-element tube (5 chunks of 3
+    and a remainder of 1; or the divisor nearest 3: 8 chunks of 2) they equal the
+    whole-mesh evaluation, forces' jvp included, and the mass coefficient adds c M_e to
+    every element matrix."""
+    from dejax import scenarios as sc
+
+    m = sc.rolled("IV", 30.0, 50e3, shape=(4, 4, 1), volumetric=volumetric).model
+    z, Cv, _ = _deformed_inputs(m)
+    q = mdl.full_coordinates(m, z, jnp.zeros(m.prescribed_dirs.shape[0]))
+    E = mdl.nominal_field(m, jnp.array([3e4]))
+    from dejax import material as mat
+
+    flow = jax.vmap(jax.vmap(lambda C: mat.backward_euler_flow_step(C, 1e-3)))(Cv)
+    p = 1e3 * jnp.ones_like(mdl.initial_pressure(m)) if m.structure.mixed else None
+    dq = jnp.asarray(np.random.default_rng(3).standard_normal(q.shape)) * 1e-6
+
+    def evaluate():
+        sys = jax.jit(lambda q: mdl.element_system(m, q, E, flow, 1e-3, p, None, mass_coefficient=2e5))(q)
+        plain = jax.jit(lambda q: mdl.element_system(m, q, E, flow, 1e-3, p, None))(q)
+        forces = jax.jit(lambda q, dq: jax.jvp(lambda q: mdl.element_forces(m, q, E, flow, 1e-3, p, None), (q,), (dq,)))(q, dq)
+        return sys, plain, forces
+
+    whole = evaluate()
+    np.testing.assert_allclose(np.asarray(whole[0].Ke), np.asarray(whole[1].Ke + 2e5 * mdl.mass_elements(m)),
+                               rtol=1e-13, atol=1e-13 * float(jnp.max(jnp.abs(whole[0].Ke))))
+    monkeypatch.setattr(mdl, "CHUNK_FROM", 1)
+    monkeypatch.setattr(mdl, "CHUNK_ELEMENTS", 3)
+    if chunk is not None:
+        monkeypatch.setattr(mdl, "_chunk_size", lambda n_el, target: chunk)
+    else:
+        assert mdl._chunk_size(16, 3) == 2 and mdl._chunk_size(960, 16) == 16 and mdl._chunk_size(13, 4) == 4
+    chunked = evaluate()
+    for a, b in zip(jax.tree_util.tree_leaves(whole), jax.tree_util.tree_leaves(chunked)):
+        assert a.shape == b.shape
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(a))) + 1e-300)
