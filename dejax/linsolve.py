@@ -449,12 +449,14 @@ def pardiso_available() -> bool:
 
 def choose_solver(structure, which: str = "auto") -> LinearSolver:
     """``"dense"``, ``"sparse"`` (SuperLU), ``"pardiso"`` or ``"auto"``: dense up to 2,500
-    reduced unknowns (measured faster there), SuperLU (COLAMD) above. ``"pardiso"`` (MKL,
-    ``pip install -e ".[fast]"``; Cholesky where the matrix is symmetric positive definite,
-    ``_PardisoPattern``) factorizes the paper's tube in 0.4 s against SuperLU's 13-16 s, but
-    whole runs measured slower on the torsional strip 24x4x2 (with its LU: 34 s vs 15 s; MKL
-    and XLA threads on 2 cores), so it is not the default. On a GPU (any non-CPU backend) ``"auto"`` is dense up
-    to ``DENSE_MAX_ACCELERATOR`` unknowns."""
+    reduced unknowns (measured faster there), above that MKL Pardiso where pypardiso is
+    installed (``pip install -e ".[fast]"``; Cholesky where the matrix is symmetric positive
+    definite, ``_PardisoPattern``), else SuperLU (COLAMD). Measured on 2 cores: the paper's
+    tube 12x20x4 factorizes in 0.3-0.4 s against SuperLU's 13-16 s; whole runs of the
+    torsional strip 24x4x2 (100 steps) 12.0 against 16.2 s and 48x8x2 (30 steps) 8.5
+    against 9.7 s. (With Pardiso's LU the 24x4x2 strip had been slower, 34 s against 15 s.)
+    On a GPU (any non-CPU backend) ``"auto"`` is dense up to ``DENSE_MAX_ACCELERATOR``
+    unknowns."""
     if which == "dense":
         return DenseSolver()
     if which == "sparse":
@@ -467,7 +469,9 @@ def choose_solver(structure, which: str = "auto") -> LinearSolver:
         # on an accelerator the dense factorization stays on the device (the sparse solvers
         # run on the host, a round trip per solve): up to DENSE_MAX_ACCELERATOR unknowns
         return DenseSolver() if structure.n_free <= DENSE_MAX_ACCELERATOR else SparseSolver()
-    return DenseSolver() if structure.n_free <= 2500 else SparseSolver()
+    if structure.n_free <= 2500:
+        return DenseSolver()
+    return SparseSolver("pardiso" if pardiso_available() else "superlu")
 
 
 DENSE_MAX_ACCELERATOR = 40_000

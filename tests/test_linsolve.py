@@ -110,6 +110,9 @@ def test_choose_solver_on_an_accelerator(monkeypatch):
     tube, huge = SimpleNamespace(n_free=14_100), SimpleNamespace(n_free=linsolve.DENSE_MAX_ACCELERATOR + 1)
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     assert isinstance(linsolve.choose_solver(tube), linsolve.SparseSolver)
+    for installed in (True, False):  # the CPU's sparse solver: Pardiso where installed, else SuperLU
+        monkeypatch.setattr(linsolve, "pardiso_available", lambda: installed)
+        assert linsolve.choose_solver(tube).backend == ("pardiso" if installed else "superlu")
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert isinstance(linsolve.choose_solver(tube), linsolve.DenseSolver)
     assert isinstance(linsolve.choose_solver(huge), linsolve.SparseSolver)
