@@ -342,7 +342,7 @@ def _felupe_iteration() -> dict | None:
                 solver=solver)
 
 
-def case_N1(dt=TUBE_DT, solver="auto", repeat=2) -> dict:
+def case_N1(dt=TUBE_DT, solver="auto", repeat=5) -> dict:
     """One Newton iteration of R2 (tube 12 x 20 x 4, Model IV): element system (forces and
     consistent tangent), condensation, sparse assembly, factorization, solve and the line
     search's residual, timed as a step limited to one iteration (after compilation, best of
