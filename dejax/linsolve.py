@@ -162,7 +162,7 @@ class _FactorCache:
 
     def get(self, pattern: mdl.Assembly, values: np.ndarray, backend: str):
         sample = values[:: _SAMPLE_STRIDE]
-        for i, (p, b, stored, f) in enumerate(self.entries):
+        for p, b, stored, f in self.entries:
             if p is pattern and b == backend and np.array_equal(stored[:: _SAMPLE_STRIDE], sample) \
                     and np.array_equal(stored, values):
                 return f
