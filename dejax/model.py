@@ -523,7 +523,13 @@ def newton_kpp(model: Model, kpp):
 
 
 def condense(Ke, kup, kpp):
-    """Static condensation of the element pressures: Ke - kup^T kpp^-1 kup (n_el, 96, 96)."""
+    """Static condensation of the element pressures: Ke - kup^T kpp^-1 kup (n_el, 96, 96);
+    by chunks of elements on large meshes (``over_element_chunks``: the paper's tube 46 ->
+    29 ms, against 19 ms for a plain copy of Ke)."""
+    return over_element_chunks(_condense_of, Ke, kup, kpp)
+
+
+def _condense_of(Ke, kup, kpp):
     return Ke - jnp.einsum("eka,ekb->eab", kup, jnp.linalg.solve(kpp, kup))
 
 

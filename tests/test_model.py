@@ -255,8 +255,8 @@ def test_element_chunks_equal_the_whole_mesh(monkeypatch, volumetric, chunk):
     """Large meshes evaluate the element system and forces a chunk of elements at a time
     (``mdl.over_element_chunks``); with chunks forced on a 16-element tube (5 chunks of 3
     and a remainder of 1; or the divisor nearest 3: 8 chunks of 2) they equal the
-    whole-mesh evaluation, forces' jvp included, and the mass coefficient adds c M_e to
-    every element matrix."""
+    whole-mesh evaluation, forces' jvp and the condensed matrices included, and the mass
+    coefficient adds c M_e to every element matrix."""
     from dejax import scenarios as sc
 
     m = sc.rolled("IV", 30.0, 50e3, shape=(4, 4, 1), volumetric=volumetric).model
@@ -273,7 +273,8 @@ def test_element_chunks_equal_the_whole_mesh(monkeypatch, volumetric, chunk):
         sys = jax.jit(lambda q: mdl.element_system(m, q, E, flow, 1e-3, p, None, mass_coefficient=2e5))(q)
         plain = jax.jit(lambda q: mdl.element_system(m, q, E, flow, 1e-3, p, None))(q)
         forces = jax.jit(lambda q, dq: jax.jvp(lambda q: mdl.element_forces(m, q, E, flow, 1e-3, p, None), (q,), (dq,)))(q, dq)
-        return sys, plain, forces
+        condensed = jax.jit(mdl.condense)(sys.Ke, sys.kup, sys.kpp) if m.structure.mixed else None
+        return sys, plain, forces, condensed
 
     whole = evaluate()
     np.testing.assert_allclose(np.asarray(whole[0].Ke), np.asarray(whole[1].Ke + 2e5 * mdl.mass_elements(m)),
