@@ -447,10 +447,8 @@ def _element_system_of(material, N, dt, c, dV, G, F, E, Cv_old, p, wmax, mass_e)
     n_el = F.shape[0]
 
     def stiffness(D):
-        K = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", dV, G, D, G)
-        if c is not None:
-            K = K + c * jnp.einsum("eab,ik->eaibk", mass_e, jnp.eye(3))
-        return K.reshape(n_el, 96, 96)
+        K = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", dV, G, D, G).reshape(n_el, 96, 96)
+        return K if c is None else K + c * _full_mass(mass_e)
 
     if p is None:
         P, D, Cv_new, Cv_F = _per_point(stress_tangent_update_and_flow_tangent)(F, E, Cv_old, dt, material, wmax)
@@ -562,7 +560,12 @@ def mass_apply(model: Model, x: jax.Array) -> jax.Array:
 
 def mass_elements(model: Model) -> jax.Array:
     """(n_el, 96, 96) full element mass matrices Mc_e (x) I3."""
-    return jnp.einsum("eab,ij->eaibj", model.mass_e, jnp.eye(3)).reshape(-1, 96, 96)
+    return _full_mass(model.mass_e)
+
+
+def _full_mass(mass_e):
+    """(n_el, 96, 96) Mc_e (x) I3 from compact element masses (n_el, 32, 32)."""
+    return jnp.einsum("eab,ij->eaibj", mass_e, jnp.eye(3)).reshape(-1, 96, 96)
 
 
 def external_force(model: Model) -> jax.Array:

@@ -210,14 +210,13 @@ def test_every_solver_offers_the_linear_solver_interface():
     assert linsolve.SparseSolver("pardiso") != linsolve.SparseSolver()
 
 
-def _tube_matrix(shape=(4, 4, 1)):
-    """The condensed iteration matrix (CSC values, pattern) of a small rolled tube: tangent
-    plus a mass term, symmetric positive definite."""
+def _tube_system(shape=(4, 4, 1)):
+    """(model, element iteration matrices) of a small rolled tube: tangent plus a mass term,
+    symmetric positive definite."""
     m = scenarios.rolled("IV", 30.0, 50e3, shape=shape).model
     E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
     _, Ke, _ = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
-    Ke = Ke + 1e3 * mdl.mass_elements(m)
-    return np.asarray(mdl.assemble_values(m, Ke)), mdl.assembly(m.structure)
+    return m, Ke + 1e3 * mdl.mass_elements(m)
 
 
 def test_pardiso_cholesky_of_a_symmetric_positive_definite_matrix():
@@ -227,7 +226,8 @@ def test_pardiso_cholesky_of_a_symmetric_positive_definite_matrix():
     scipy's LU; a matrix that is not positive definite, or not symmetric, falls back to LU
     and still solves; slots are released, so more factorizations than slots never fail."""
     pytest.importorskip("pypardiso")
-    values, pattern = _tube_matrix()
+    m, Ke = _tube_system()
+    values, pattern = np.asarray(mdl.assemble_values(m, Ke)), mdl.assembly(m.structure)
     A = linsolve._csc(pattern, values)
     b = np.random.default_rng(0).standard_normal((pattern.n, 3))
 
@@ -276,10 +276,7 @@ def test_pardiso_solver_through_the_callback_equals_dense():
     tube's iteration matrix as the dense solver does, and a repeated solve reuses the
     factorization."""
     pytest.importorskip("pypardiso")
-    m = scenarios.rolled("IV", 30.0, 50e3, shape=(4, 4, 1)).model
-    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
-    _, Ke, _ = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
-    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    m, Ke = _tube_system()
     K = np.asarray(mdl.assemble_dense(m, Ke))
     b = jnp.asarray(np.random.default_rng(1).standard_normal(m.structure.n_free))
     solver = linsolve.SparseSolver("pardiso")
