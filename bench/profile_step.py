@@ -6,6 +6,15 @@ Times (ms, after compilation, median of repeats) of: the residual (element force
 viscous update), the element system (forces + consistent tangent), condensation +
 dense/sparse assembly, the factorization, one solve with it, and a whole step of the
 rolled tube (Model IV, 50 kV, 30 Hz, dt = 1e-4 s unless --dt) from a state part-way into the run.
+
+With ``--lanes N`` also the floor of a forward-mode derivative step with N tangent lanes (G1:
+12): what the implicit derivative of each step must add to the forward step, at the least,
+timed piece by piece: the element system at the converged state (consistent tangent), its
+condensation, assembly and factorization, N solves, and the residual's jvp along N
+directions (here coordinate directions: the parameter lanes push at least this through the
+material law, plus the parameters' own tangents). The floor ratio (forward step + floor) /
+forward step bounds what G1 / R1 can reach with exact per-step derivatives, before any of the
+lanes' bookkeeping (state tangents, BDF2 history, layout copies).
 """
 from __future__ import annotations
 
@@ -37,6 +46,8 @@ def main():
     ap.add_argument("--steps", type=int, default=100, help="steps run before profiling (a loaded state)")
     ap.add_argument("--model", default="IV")
     ap.add_argument("--dt", type=float, default=1e-4, help="time step (s)")
+    ap.add_argument("--lanes", type=int, default=0, help="also time a forward-mode derivative step's floor with "
+                    "this many tangent lanes (G1: 12)")
     a = ap.parse_args()
     shape = tuple(int(s) for s in a.mesh.split("x"))
     p = scenarios.rolled(a.model, 30.0, 50e3, shape=shape)
@@ -97,6 +108,20 @@ def main():
     print(f"{'solve with the factorization':<44} {t_sol:9.2f} ms")
     print(f"{'one step, fresh factorization':<44} {t_step_fresh:9.2f} ms  ({int(out[1])} it, {int(out[2])} fact.)")
     print(f"{'one step, reused factorization':<44} {t_step_reuse:9.2f} ms  ({int(out2[1])} it, {int(out2[2])} fact.)")
+    if a.lanes:
+        n = a.lanes
+        dz = jnp.asarray(np.random.default_rng(0).standard_normal((n, z.size))) * mdl.dof_scale(m) * 1e-3
+        jvp_n = jax.jit(jax.vmap(lambda d: jax.jvp(lambda z_: it._residual(m, scheme, ctx, z_, pr)[0], (z,), (d,))[1]))
+        t_jvp, _ = timed(jvp_n, dz)
+        sol_n = jax.jit(lambda F, r: solver.solve_factored(m, F, r.T))
+        t_soln, _ = timed(sol_n, F, dz)
+        floor = t_sys + t_cond + t_fac + t_soln + t_jvp
+        print(f"forward-mode derivative floor, {n} lanes (what each step adds at the least):")
+        print(f"{'  residual jvp along ' + str(n) + ' directions':<44} {t_jvp:9.2f} ms")
+        print(f"{'  ' + str(n) + ' solves with the factorization':<44} {t_soln:9.2f} ms")
+        print(f"{'  + element system, condensation, factorization':<44} {t_sys + t_cond + t_fac:9.2f} ms")
+        print(f"{'  floor':<44} {floor:9.2f} ms: derivative run >= {(t_step_reuse + floor) / t_step_reuse:.1f}x "
+              f"the forward run (its step: {t_step_reuse:.2f} ms, reused factorization)")
 
 
 if __name__ == "__main__":
