@@ -130,21 +130,52 @@ def element_reference_data(
       G: (n_gp, 32, 3) physical gradients ``dN/dX`` (1/m), so that F = e^T G,
       dV: (n_gp,) quadrature weight times reference volume Jacobian (m^3).
     """
+    N, Jinv, dV = element_reference_factors(X_e, dXdxi_e, points, weights)
+    G = jnp.einsum("ba,gbk,gkj->gaj", slot_transform(dXdxi_e), jax.vmap(parametric_shape_gradients)(jnp.asarray(points)),
+                   Jinv)
+    return N, G, dV
+
+
+@jax.jit
+def element_reference_factors(
+    X_e: jax.Array, dXdxi_e: jax.Array, points: np.ndarray, weights: np.ndarray
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``element_reference_data`` with G left in its factors: G_g = A^T dNdxi_g Jinv_g, A
+    the element's slot transform (``slot_transform``, from ``dXdxi_e``), dNdxi_g the
+    parametric shape gradients at the point (the same in every element) and Jinv_g =
+    (dX/dxi)^-1 at the point. A mesh's contractions then run on the shared dNdxi
+    (``dejax.model``: F, element forces and stiffness).
+
+    Returns:
+      N (n_gp, 32), Jinv (n_gp, 3, 3) in 1/m, dV (n_gp,) in m^3.
+    """
     A = slot_transform(dXdxi_e)
     e0 = reference_element_coordinates(X_e)  # (32, 3)
     pts = jnp.asarray(points)
 
     def at_point(xi):
-        Np = parametric_shape_functions(xi)
-        dNp = parametric_shape_gradients(xi)
-        N = A.T @ Np
-        dN = A.T @ dNp  # (32, 3): d/dxi of Cartesian-slot functions
-        J0 = e0.T @ dN  # (3, 3) dX/dxi
-        G = dN @ jnp.linalg.inv(J0)
-        return N, G, jnp.linalg.det(J0)
+        N = A.T @ parametric_shape_functions(xi)
+        J0 = e0.T @ (A.T @ parametric_shape_gradients(xi))  # (3, 3) dX/dxi
+        return N, jnp.linalg.inv(J0), jnp.linalg.det(J0)
 
-    N, G, detJ = jax.vmap(at_point)(pts)
-    return N, G, detJ * jnp.asarray(weights)
+    N, Jinv, detJ = jax.vmap(at_point)(pts)
+    return N, Jinv, detJ * jnp.asarray(weights)
+
+
+def parametric_slots(e: jax.Array, dXdxi: jax.Array) -> jax.Array:
+    """A e: Cartesian element coordinates (..., 32, 3) to parametric ones (the gradient
+    slots of node n mixed by its dXdxi (..., 8, 3, 3): dr/dxi_k = sum_m dr/dX_m dX_m/dxi_k)."""
+    q = e.reshape(e.shape[:-2] + (N_NODES, 4, e.shape[-1]))
+    grads = jnp.einsum("...nmk,...nmi->...nki", dXdxi, q[..., 1:, :])
+    return jnp.concatenate([q[..., :1, :], grads], axis=-2).reshape(e.shape)
+
+
+def cartesian_slots(f: jax.Array, dXdxi: jax.Array) -> jax.Array:
+    """A^T f: slot vectors (..., 32, c) conjugate to parametric coordinates (forces, a
+    matrix's rows) to those conjugate to the Cartesian ones; dXdxi (..., 8, 3, 3)."""
+    q = f.reshape(f.shape[:-2] + (N_NODES, 4, f.shape[-1]))
+    grads = jnp.einsum("...nmk,...nkc->...nmc", dXdxi, q[..., 1:, :])
+    return jnp.concatenate([q[..., :1, :], grads], axis=-2).reshape(f.shape)
 
 
 def face_load(X_e: jax.Array, dXdxi_e: jax.Array, axis: int, side: int, traction, order: int = 3) -> jax.Array:
@@ -219,3 +250,12 @@ def mesh_reference_data(X: jax.Array, conn: jax.Array, dXdxi: jax.Array, order: 
     """
     points, weights = gauss_rule(order)
     return jax.vmap(lambda Xe, J: element_reference_data(Xe, J, points, weights))(X[conn], dXdxi)
+
+
+def mesh_reference_factors(X: jax.Array, conn: jax.Array, dXdxi: jax.Array, order: int):
+    """Vectorised ``element_reference_factors`` over a mesh (arguments as
+    ``mesh_reference_data``): N (n_el, n_gp, 32), dNdxi (n_gp, 32, 3) the parametric shape
+    gradients at the points (shared), Jinv (n_el, n_gp, 3, 3) in 1/m, dV (n_el, n_gp) in m^3."""
+    points, weights = gauss_rule(order)
+    N, Jinv, dV = jax.vmap(lambda Xe, J: element_reference_factors(Xe, J, points, weights))(X[conn], dXdxi)
+    return N, jax.vmap(parametric_shape_gradients)(jnp.asarray(points)), Jinv, dV

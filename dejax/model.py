@@ -75,7 +75,10 @@ class Model(eqx.Module):
 
     q0: jax.Array  # (n_dofs,) reference coordinates
     N: jax.Array  # (n_el, n_gp, 32)
-    G: jax.Array  # (n_el, n_gp, 32, 3)
+    # G = dN/dX (n_el, n_gp, 32, 3) in its factors G = A_e^T dNdxi Jinv (element.element_reference_factors)
+    dNdxi: jax.Array  # (n_gp, 32, 3) parametric shape gradients at the Gauss points (every element's)
+    dXdxi: jax.Array  # (n_el, 8, 3, 3) nodal map derivatives dX/dxi (m): the slot transform A_e
+    Jinv: jax.Array  # (n_el, n_gp, 3, 3) dxi/dX at the Gauss points (1/m)
     dV: jax.Array  # (n_el, n_gp)
     field_dirs: jax.Array  # (n_channels, n_el, n_gp, 3) Grad of unit potential (1/m)
     mass_e: jax.Array  # (n_el, 32, 32) compact element mass (kg)
@@ -128,8 +131,8 @@ def build_model(
         constraints = Constraints(mesh.n_dofs)
     if constraints.n_dofs != mesh.n_dofs:
         raise ValueError(f"constraints are for {constraints.n_dofs} coordinates, mesh has {mesh.n_dofs}")
-    N, G, dV, field_dirs, mass_e, q0 = _reference_arrays(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi, mesh.potential,
-                                                         material.rho, int(gauss_order))
+    N, dNdxi, Jinv, dV, field_dirs, mass_e, q0 = _reference_arrays(mesh.X, jnp.asarray(mesh.conn), mesh.dXdxi,
+                                                                   mesh.potential, material.rho, int(gauss_order))
     try:
         dv = np.asarray(dV)
         if np.any(dv <= 0):
@@ -157,7 +160,8 @@ def build_model(
                           n_dofs=mesh.n_dofs, gauss_order=int(gauss_order), is_position=(free % 12) < 3,
                           node_sets=dict(mesh.node_sets), volumetric=volumetric, incompressible=incompressible,
                           pressure_basis=basis)
-    return Model(q0=q0, N=N, G=G, dV=dV, field_dirs=field_dirs, mass_e=mass_e,
+    return Model(q0=q0, N=N, dNdxi=dNdxi, dXdxi=jnp.asarray(mesh.dXdxi), Jinv=Jinv, dV=dV, field_dirs=field_dirs,
+                 mass_e=mass_e,
                  material=material, damping=jnp.asarray(damping, dtype=float), gravity=jnp.asarray(gravity, dtype=float),
                  dead_load=jnp.zeros(mesh.n_dofs), prescribed_dirs=jnp.asarray(dirs), _structure=Static(structure))
 
@@ -166,17 +170,18 @@ def build_model(
 def _reference_arrays(X, conn, dXdxi, potential, rho, gauss_order: int):
     """The model's reference arrays of a mesh (X (n_nodes, 3), conn (n_el, 8), dXdxi,
     potential (n_ch, n_nodes, 4)), compiled as one program per mesh size (eager, each
-    operation would be compiled on its own): N, G, dV (``element.mesh_reference_data``),
-    field_dirs (n_ch, n_el, n_gp, 3), mass_e (n_el, 32, 32) and q0 (n_dofs,)."""
-    N, G, dV = el.mesh_reference_data(X, conn, dXdxi, gauss_order)
+    operation would be compiled on its own): N, dNdxi, Jinv, dV
+    (``element.mesh_reference_factors``), field_dirs (n_ch, n_el, n_gp, 3), mass_e (n_el, 32,
+    32) and q0 (n_dofs,)."""
+    N, dNdxi, Jinv, dV = el.mesh_reference_factors(X, conn, dXdxi, gauss_order)
     pot = potential[:, conn, :]  # (n_ch, n_el, 8, 4)
     pot = pot.reshape(pot.shape[0], pot.shape[1], 32)
-    field_dirs = jnp.einsum("cea,egai->cegi", pot, G)
+    field_dirs = jax.vmap(lambda u: _gradients_of(u[..., None], dXdxi, dNdxi, Jinv)[..., 0, :])(pot)
     # the mass integrand is of degree 6 per direction: 4 points are exact (a lower
     # stiffness rule would leave the mass matrix rank deficient)
-    Nm, _, dVm = (N, G, dV) if gauss_order >= 4 else el.mesh_reference_data(X, conn, dXdxi, 4)
+    Nm, dVm = (N, dV) if gauss_order >= 4 else el.mesh_reference_data(X, conn, dXdxi, 4)[::2]
     mass_e = jax.vmap(el.element_mass, in_axes=(0, 0, None))(Nm, dVm, rho)
-    return N, G, dV, field_dirs, mass_e, reference_coordinates(X)
+    return N, dNdxi, Jinv, dV, field_dirs, mass_e, reference_coordinates(X)
 
 
 def dof_scale(model: Model) -> jax.Array:
@@ -221,7 +226,25 @@ def scatter_slots(model: Model, fe: jax.Array) -> jax.Array:
 
 def deformation_gradients(model: Model, q: jax.Array) -> jax.Array:
     """(n_el, n_gp, 3, 3) F at every Gauss point (Eq. 36)."""
-    return jnp.einsum("eai,egaj->egij", element_coordinates(model, q), model.G)
+    return _gradients_of(element_coordinates(model, q), model.dXdxi, model.dNdxi, model.Jinv)
+
+
+# G = A_e^T dNdxi Jinv in its factors: the contractions over the 32 slots run on the
+# parametric gradients dNdxi, the same in every element (one matrix product for the whole
+# mesh, with the element and tangent-lane axes side by side), and the geometry enters
+# through 3 x 3 products per point and node (a derivative with respect to h, L or r
+# perturbs these alone, not 96 numbers per point). Against the per-element G (2 cores,
+# alternated runs of `dejax bench --cases R1,G1 --max-steps 200` and `--cases R2
+# --max-steps 100`): G1 26.4/27.1 -> 23.8/23.6 s, R2 130.6/120.7 -> 100.1/103.3 s
+# projected; timed alone, F 4.1 -> 0.8 ms and the element forces 10 -> 1.0 ms on the
+# paper's tube (960 elements).
+
+
+def _gradients_of(qe, dXdxi, dNdxi, Jinv):
+    """(n_el, n_gp, c, 3) gradients d(qe^T N)/dX at the points of element coordinates qe
+    (n_el, 32, c): F for c = 3 (Eq. 36)."""
+    Fxi = jnp.einsum("eai,gak->egik", el.parametric_slots(qe, dXdxi), dNdxi)  # d/dxi
+    return jnp.einsum("egik,egkj->egij", Fxi, Jinv)
 
 
 def nominal_field(model: Model, phi: jax.Array) -> jax.Array:
@@ -337,12 +360,14 @@ def pressure_mass(model: Model) -> jax.Array:
 
 
 def _nodal(model: Model, P):
-    """(n_el, 32, 3) element force vectors sum_g dV_g G_g P_g from stresses (n_el, n_gp, 3, 3)."""
-    return _nodal_of(model.dV, model.G, P)
+    """(n_el, 32, 3) element force vectors sum_g dV_g G_g P_g^T from stresses (n_el, n_gp, 3, 3)."""
+    return _nodal_of(model.dNdxi, model.dV, model.dXdxi, model.Jinv, P)
 
 
-def _nodal_of(dV, G, P):
-    return jnp.einsum("eg,egaj,egij->eai", dV, G, P)
+def _nodal_of(dNdxi, dV, dXdxi, Jinv, P):
+    """``_nodal`` from G's factors (``_gradients_of``); P (n_el, n_gp, c, 3) -> (n_el, 32, c)."""
+    S = jnp.einsum("eg,egij,egkj->egik", dV, P, Jinv)  # dV P Jinv^T
+    return el.cartesian_slots(jnp.einsum("egik,gak->eai", S, dNdxi), dXdxi)
 
 
 def element_forces(model: Model, q, E, Cv_old, dt, p=None, wmax=None):
@@ -360,18 +385,18 @@ def element_forces(model: Model, q, E, Cv_old, dt, p=None, wmax=None):
     F = deformation_gradients(model, q)
     mixed = model.structure.mixed
     pts, N = (pressure_at_points(model, p), _basis(model)) if mixed else (None, None)
-    body = functools.partial(_element_forces_of, model.material, N, dt)
-    return over_element_chunks(body, model.dV, model.G, F, E, Cv_old, pts, _history(model, wmax))
+    body = functools.partial(_element_forces_of, model.material, N, model.dNdxi, dt)
+    return over_element_chunks(body, model.dV, model.dXdxi, model.Jinv, F, E, Cv_old, pts, _history(model, wmax))
 
 
-def _element_forces_of(material, N, dt, dV, G, F, E, Cv_old, p, wmax):
+def _element_forces_of(material, N, dNdxi, dt, dV, dXdxi, Jinv, F, E, Cv_old, p, wmax):
     """``element_forces`` of a set of elements from their per-point data (as
     ``_element_system_of``)."""
     if p is None:
         P, Cv_new = _per_point(stress_and_update)(F, E, Cv_old, dt, material, wmax)
-        return _nodal_of(dV, G, P), None, Cv_new
+        return _nodal_of(dNdxi, dV, dXdxi, Jinv, P), None, Cv_new
     P, r_p, Cv_new = _per_point_mixed(mixed_stress_and_update)(F, E, Cv_old, dt, p, material, wmax)
-    return _nodal_of(dV, G, P), jnp.einsum("eg,gk,eg->ek", dV, N, r_p), Cv_new
+    return _nodal_of(dNdxi, dV, dXdxi, Jinv, P), jnp.einsum("eg,gk,eg->ek", dV, N, r_p), Cv_new
 
 
 def internal_force(model: Model, q, E, Cv_old, dt, p=None, wmax=None):
@@ -435,30 +460,35 @@ def element_system(model: Model, q, E, Cv_old, dt, p=None, wmax=None, mass_coeff
     F = deformation_gradients(model, q)
     mixed = model.structure.mixed
     pts, N = (pressure_at_points(model, p), _basis(model)) if mixed else (None, None)
-    body = functools.partial(_element_system_of, model.material, N, dt, mass_coefficient)
-    return over_element_chunks(body, model.dV, model.G, F, E, Cv_old, pts, _history(model, wmax), model.mass_e)
+    body = functools.partial(_element_system_of, model.material, N, model.dNdxi, dt, mass_coefficient)
+    return over_element_chunks(body, model.dV, model.dXdxi, model.Jinv, F, E, Cv_old, pts, _history(model, wmax),
+                               model.mass_e)
 
 
-def _element_system_of(material, N, dt, c, dV, G, F, E, Cv_old, p, wmax, mass_e) -> ElementSystem:
+def _element_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_old, p, wmax, mass_e) -> ElementSystem:
     """``element_system`` of a set of elements from their per-point data (leading axis n_el):
-    dV (n_el, n_gp), G (n_el, n_gp, 32, 3), F, E, Cv_old, p (None in the displacement form),
-    wmax, mass_e (n_el, 32, 32); N (n_gp, n_p) the pressure basis (shared); c the mass
+    dV (n_el, n_gp), dXdxi (n_el, 8, 3, 3) and Jinv (n_el, n_gp, 3, 3) (G's factors with the
+    shared dNdxi (n_gp, 32, 3)), F, E, Cv_old, p (None in the displacement form), wmax,
+    mass_e (n_el, 32, 32); N (n_gp, n_p) the pressure basis (shared); c the mass
     coefficient (None: none)."""
     n_el = F.shape[0]
+    nodal = functools.partial(_nodal_of, dNdxi, dXdxi=dXdxi, Jinv=Jinv)
 
     def stiffness(D):
+        G = el.cartesian_slots(jnp.einsum("gak,egkj->egaj", dNdxi, Jinv), dXdxi[:, None])  # (n_el, n_gp, 32, 3)
         K = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", dV, G, D, G).reshape(n_el, 96, 96)
         return K if c is None else K + c * _full_mass(mass_e)
 
     if p is None:
         P, D, Cv_new, Cv_F = _per_point(stress_tangent_update_and_flow_tangent)(F, E, Cv_old, dt, material, wmax)
-        return ElementSystem(_nodal_of(dV, G, P), stiffness(D), None, None, None, Cv_new, Cv_F)
+        return ElementSystem(nodal(dV=dV, P=P), stiffness(D), None, None, None, Cv_new, Cv_F)
     P, r_p, D, P_p, r_pp, Cv_new, Cv_F = _per_point_mixed(mixed_tangent_and_update)(F, E, Cv_old, dt, p, material, wmax)
     Ke = stiffness(D)
-    kup = jnp.einsum("eg,gk,egaj,egij->ekai", dV, N, G, P_p).reshape(n_el, N.shape[1], 96)
+    # d fe / d p_k: the forces of the stress dP/dp weighted by the pressure basis N_k
+    kup = jax.vmap(lambda Nk: nodal(dV=dV * Nk, P=P_p), out_axes=1)(N.T).reshape(n_el, N.shape[1], 96)
     g = jnp.einsum("eg,gk,eg->ek", dV, N, r_p)
     kpp = jnp.einsum("eg,gk,gl,eg->ekl", dV, N, N, r_pp)
-    return ElementSystem(_nodal_of(dV, G, P), Ke, g, kup, kpp, Cv_new, Cv_F)
+    return ElementSystem(nodal(dV=dV, P=P), Ke, g, kup, kpp, Cv_new, Cv_F)
 
 
 CHUNK_ELEMENTS = 16
