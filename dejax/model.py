@@ -1,7 +1,8 @@
 """Mesh + material + constraints -> residual, tangent and energies (paper Eqs. 21-30).
 
 The discrete model is a ``Model`` pytree: per-Gauss-point reference data
-(shape-function gradients ``G``, volumes ``dV``, unit-potential gradients),
+(shape-function gradients ``G`` = A_e^T dNdxi Jinv kept in their factors, volumes
+``dV``, unit-potential gradients),
 element mass matrices, the material and the prescribed-motion directions are
 traced arrays (differentiable in geometry and material); integer topology and
 the constraint split live in a static ``Structure``.
