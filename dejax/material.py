@@ -532,21 +532,40 @@ def stress_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
 
 @jax.jit
 def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
-    """(P, D, Cv_new) with D = dP/dF (3, 3, 3, 3), the consistent tangent."""
-    return stress_tangent_update_and_flow_tangent(F, E, Cv_old, dt, mat, wmax)[:3]
+    """(P, D, Cv_new) with D = dP/dF (3, 3, 3, 3), D[i, j, k, l] = dP_ij / dF_kl, the
+    consistent tangent."""
+    P, D, Cv_new, _ = stress_tangent_update_and_flow_tangent(F, E, Cv_old, dt, mat, wmax)
+    return P, jnp.transpose(D, (2, 3, 0, 1)), Cv_new
+
+
+# The consistent tangent's forward pass, one lane per direction of F (and of p), keeps the
+# lanes first in its results (D[k, l] = dP/dF_kl): jax.jacfwd moves them last, a strided
+# copy of every per-point Jacobian that took a quarter of the tangent's time (tube 4x8x1,
+# 864 points: 4.2-4.5 ms with it, 3.5 ms without).
+_F_DIRECTIONS = np.eye(9).reshape(9, 3, 3)
+
+
+def _tangent_lanes(f, F, extra_directions=None):
+    """(f(F), its derivatives along the 9 unit directions of F, lanes first), f returning a
+    pytree; with ``extra_directions`` (an argument x and its directions (n, ...)), f(F, x)
+    and 9 + n lanes: the F directions at fixed x, then x's at fixed F."""
+    dF = jnp.asarray(_F_DIRECTIONS)
+    if extra_directions is None:
+        return jax.vmap(lambda t: jax.jvp(f, (F,), (t,)), out_axes=(None, 0))(dF)
+    x, dx = extra_directions
+    tF = jnp.concatenate([dF, jnp.zeros((dx.shape[0], 3, 3))])
+    tx = jnp.concatenate([jnp.zeros((9,) + dx.shape[1:]), dx])
+    return jax.vmap(lambda a, b: jax.jvp(f, (F, x), (a, b)), out_axes=(None, 0))(tF, tx)
 
 
 @jax.jit
 def stress_tangent_update_and_flow_tangent(F, E, Cv_old, dt, mat: Material, wmax=0.0):
-    """``stress_tangent_and_update`` and dCv_new/dF (n_units, 3, 3, 3, 3): the flow rule's
-    derivative, a by-product of the consistent tangent's forward pass (no extra work)."""
-
-    def f(F_):
-        P, Cv_new = stress_and_update(F_, E, Cv_old, dt, mat, wmax)
-        return (P, Cv_new), (P, Cv_new)
-
-    (D, Cv_F), (P, Cv_new) = jax.jacfwd(f, has_aux=True)(F)
-    return P, D, Cv_new, Cv_F
+    """(P, D, Cv_new, Cv_F) with the derivative's direction first: D (3, 3, 3, 3),
+    D[k, l, i, j] = dP_ij / dF_kl (``stress_tangent_and_update`` transposed), and Cv_F (3, 3,
+    n_units, 3, 3) = dCv_new / dF_kl: the flow rule's derivative, a by-product of the
+    consistent tangent's forward pass (no extra work)."""
+    (P, Cv_new), (dP, dCv) = _tangent_lanes(lambda F_: stress_and_update(F_, E, Cv_old, dt, mat, wmax), F)
+    return P, dP.reshape(3, 3, 3, 3), Cv_new, dCv.reshape((3, 3) + dCv.shape[1:])
 
 
 @jax.jit
@@ -560,18 +579,15 @@ def mixed_stress_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
 
 @jax.jit
 def mixed_tangent_and_update(F, E, Cv_old, dt, p, mat: Material, wmax=0.0):
-    """Mixed form at one point: (P, r_p, D = dP/dF (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new,
-    dCv_new/dF (n_units, 3, 3, 3, 3)).
+    """Mixed form at one point: (P, r_p, D (3, 3, 3, 3), dP/dp (3, 3), dr_p/dp, Cv_new, Cv_F
+    (3, 3, n_units, 3, 3)), the derivatives along F with their direction first:
+    D[k, l, i, j] = dP_ij / dF_kl, Cv_F[k, l] = dCv_new / dF_kl.
 
     D is the consistent tangent (dCv/dF included); dr_p/dF = dP/dp (= cof F); Cv_new does
     not depend on p. dCv_new/dF is a by-product of D's forward pass."""
-
-    def f(F_, p_):
-        P, r_p, Cv_new = mixed_stress_and_update(F_, E, Cv_old, dt, p_, mat, wmax)
-        return (P, r_p, Cv_new), (P, r_p, Cv_new)
-
-    ((D, P_p), (_, r_pp), (Cv_F, _)), (P, r_p, Cv_new) = jax.jacfwd(f, argnums=(0, 1), has_aux=True)(F, p)
-    return P, r_p, D, P_p, r_pp, Cv_new, Cv_F
+    f = lambda F_, p_: mixed_stress_and_update(F_, E, Cv_old, dt, p_, mat, wmax)  # noqa: E731
+    (P, r_p, Cv_new), (dP, dr, dCv) = _tangent_lanes(f, F, (p, jnp.ones((1,) + jnp.shape(p))))
+    return P, r_p, dP[:9].reshape(3, 3, 3, 3), dP[9], dr[9], Cv_new, dCv[:9].reshape((3, 3) + dCv.shape[1:])
 
 
 @jax.jit

@@ -442,7 +442,7 @@ class ElementSystem(eqx.Module):
     residuals (m^3); kup (n_el, n_p, 96) = d fe / d p = d g / d e; kpp (n_el, n_p, n_p) =
     d g / d p (m^3/Pa: -int N N^T dV / K; 0 for K = inf); g, kup, kpp are None in the
     displacement form. Cv_new: the viscous state implied by this iterate; Cv_F (n_el, n_gp,
-    n_units, 3, 3, 3, 3) = d Cv_new / d F at fixed step data (``flow_tangent``).
+    3, 3, n_units, 3, 3) = d Cv_new / d F_kl at fixed step data (``flow_tangent``).
     """
 
     fe: jax.Array
@@ -477,7 +477,7 @@ def _element_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_old,
 
     def stiffness(D):
         G = el.cartesian_slots(jnp.einsum("gak,egkj->egaj", dNdxi, Jinv), dXdxi[:, None])  # (n_el, n_gp, 32, 3)
-        K = jnp.einsum("eg,egaj,egijkl,egbl->eaibk", dV, G, D, G).reshape(n_el, 96, 96)
+        K = jnp.einsum("eg,egaj,egklij,egbl->eaibk", dV, G, D, G).reshape(n_el, 96, 96)  # D[k, l, i, j]
         return K if c is None else K + c * _full_mass(mass_e)
 
     if p is None:
@@ -533,7 +533,7 @@ def _chunk_size(n_el: int, target: int) -> int:
 def flow_tangent(model: Model, Cv_F, dq):
     """(n_el, n_gp, n_units, 3, 3) change of the step's Cv_new for a coordinate change dq
     (n_dofs,) at fixed step data: d Cv_new / d F : dF(dq), F being linear in q (Eq. 36)."""
-    return jnp.einsum("eguijkl,egkl->eguij", Cv_F, deformation_gradients(model, dq))
+    return jnp.einsum("egkluij,egkl->eguij", Cv_F, deformation_gradients(model, dq))
 
 
 AUGMENTED_BULK = 1e4
