@@ -5,7 +5,7 @@ deformation gradient ``F`` (3 x 3), the nominal electric field ``E`` (3,) (V/m,
 ``E = -Grad phi`` in the reference configuration) and the viscous right
 Cauchy-Green tensors ``Cv`` (n_units, 3, 3) of the parallel viscous units.
 Batch over Gauss points with ``jax.vmap``. Forces and tangents come from
-``jax.grad`` / ``jax.jacfwd`` of ``free_energy``; nothing here is hand-derived.
+``jax.grad`` / ``jax.jvp`` (forward lanes) of ``free_energy``; nothing here is hand-derived.
 
 Free energy (docs/paper-notes.md, Eqs. 18-20)::
 
@@ -518,8 +518,8 @@ def stress_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
 
     P = d psi / d F at fixed Cv_new and Mullins factor eta (``mullins_factor`` from the
     point's history ``wmax``, J/m^3), with Cv_new = viscous_update(F, Cv_old); the total
-    derivative dP/dF (``jax.jacfwd`` of this function) is the consistent tangent including
-    dCv/dF and d eta/dF.
+    derivative dP/dF (forward-mode, ``stress_tangent_update_and_flow_tangent``) is the
+    consistent tangent including dCv/dF and d eta/dF.
 
     Returns:
       P (3, 3) in Pa, Cv_new (n_units, 3, 3).
