@@ -237,8 +237,8 @@ def deformation_gradients(model: Model, q: jax.Array) -> jax.Array:
 # perturbs these alone, not 96 numbers per point). Against the per-element G (2 cores,
 # alternated runs of `dejax bench --cases R1,G1 --max-steps 200` and `--cases R2
 # --max-steps 100`): G1 26.4/27.1 -> 23.8/23.6 s, R2 130.6/120.7 -> 100.1/103.3 s
-# projected; timed alone, F 4.1 -> 0.8 ms and the element forces 10 -> 1.0 ms on the
-# paper's tube (960 elements).
+# projected; the residual of R2 (`python bench/profile_step.py --mesh 12x20x4`) 32-34 ->
+# 26-28 ms.
 
 
 def _gradients_of(qe, dXdxi, dNdxi, Jinv):
