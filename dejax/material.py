@@ -540,8 +540,8 @@ def stress_tangent_and_update(F, E, Cv_old, dt, mat: Material, wmax=0.0):
 
 # The consistent tangent's forward pass, one lane per direction of F (and of p), keeps the
 # lanes first in its results (D[k, l] = dP/dF_kl): jax.jacfwd moves them last, a strided
-# copy of every per-point Jacobian that took a quarter of the tangent's time (tube 4x8x1,
-# 864 points: 4.2-4.5 ms with it, 3.5 ms without).
+# copy of every per-point Jacobian (`python bench/tangent_layout.py`: the tangent and
+# stiffness of the tube 4x8x1, 7.1-7.3 ms with it, 4.8-5.3 ms without).
 _F_DIRECTIONS = np.eye(9).reshape(9, 3, 3)
 
 
