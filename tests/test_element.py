@@ -272,6 +272,35 @@ def test_affine_motion_exact(geometry):
     assert np.max(np.abs(r - (Xq @ Fa.T + c))) < 1e-12
 
 
+@pytest.mark.parametrize("geometry", ["cube", "distorted"])
+def test_factored_gradients_reproduce_affine_motion(geometry):
+    """G kept in its factors (the model's route: element coordinates to parametric slots,
+    contracted with the shared parametric shape gradients, then Jinv) gives the exact F of
+    an affine motion, as the assembled G does; and ``cartesian_slots`` is the transpose of
+    ``parametric_slots`` (<A e, f> = <e, A^T f> for random e, f)."""
+    X, dXdxi = unit_cube() if geometry == "cube" else distorted_element()
+    rng = np.random.default_rng(11)
+    Fa = random_rotation(rng) @ random_stretch(rng)
+    e = np.zeros((32, 3))
+    for i in range(8):
+        e[4 * i] = Fa @ X[i]
+        e[4 * i + 1 : 4 * i + 4] = Fa.T
+    pts, wts = el.gauss_rule(3)
+    N, Jinv, dV = el.element_reference_factors(jnp.asarray(X), jnp.asarray(dXdxi), pts, wts)
+    dNdxi = jax.vmap(el.parametric_shape_gradients)(jnp.asarray(pts))
+    J = jnp.asarray(dXdxi)
+    Fxi = jnp.einsum("ai,gak->gik", el.parametric_slots(jnp.asarray(e), J), dNdxi)
+    F = np.asarray(jnp.einsum("gik,gkj->gij", Fxi, Jinv))
+    assert np.max(np.abs(F - Fa)) < 1e-12
+    a, f = rng.normal(size=(32, 3)), rng.normal(size=(32, 3))
+    lhs = float(jnp.sum(el.parametric_slots(jnp.asarray(a), J) * f))
+    rhs = float(jnp.sum(jnp.asarray(a) * el.cartesian_slots(jnp.asarray(f), J)))
+    assert abs(lhs - rhs) < 1e-12 * max(1.0, abs(lhs))
+    # the same as the matrix A of slot_transform
+    A = np.asarray(el.slot_transform(J))
+    np.testing.assert_allclose(np.asarray(el.parametric_slots(jnp.asarray(a), J)), A @ a, rtol=0, atol=1e-14)
+
+
 # --------------------------------------------------------------------------------------
 # 3. Total mass
 # --------------------------------------------------------------------------------------
