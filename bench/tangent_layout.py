@@ -37,7 +37,7 @@ def main():
     F = mdl.deformation_gradients(m, state.q) + 0.01  # off the reference state
     E = mdl.nominal_field(m, load.phi(dt))
     flow, pg, w = mdl.flow_step(m, state, dt), mdl.pressure_at_points(m, state.p), mdl.initial_history(m)
-    G = el.cartesian_slots(jnp.einsum("gak,egkj->egaj", m.dNdxi, m.Jinv), m.dXdxi[:, None])
+    G = el.gradients_from_factors(m.dNdxi, m.Jinv, m.dXdxi)
     axes = (0, 0, 0, None, 0, None, 0)
 
     def lanes_last(F):

@@ -131,9 +131,7 @@ def element_reference_data(
       dV: (n_gp,) quadrature weight times reference volume Jacobian (m^3).
     """
     N, Jinv, dV = element_reference_factors(X_e, dXdxi_e, points, weights)
-    G = jnp.einsum("ba,gbk,gkj->gaj", slot_transform(dXdxi_e), jax.vmap(parametric_shape_gradients)(jnp.asarray(points)),
-                   Jinv)
-    return N, G, dV
+    return N, gradients_from_factors(jax.vmap(parametric_shape_gradients)(jnp.asarray(points)), Jinv, dXdxi_e), dV
 
 
 @jax.jit
@@ -168,6 +166,12 @@ def parametric_slots(e: jax.Array, dXdxi: jax.Array) -> jax.Array:
     q = e.reshape(e.shape[:-2] + (N_NODES, 4, e.shape[-1]))
     grads = jnp.einsum("...nmk,...nmi->...nki", dXdxi, q[..., 1:, :])
     return jnp.concatenate([q[..., :1, :], grads], axis=-2).reshape(e.shape)
+
+
+def gradients_from_factors(dNdxi: jax.Array, Jinv: jax.Array, dXdxi: jax.Array) -> jax.Array:
+    """G = A^T dNdxi Jinv (..., n_gp, 32, 3) from its factors: dNdxi (n_gp, 32, 3), Jinv
+    (..., n_gp, 3, 3), dXdxi (..., 8, 3, 3) (``element_reference_factors``)."""
+    return cartesian_slots(jnp.einsum("gak,...gkj->...gaj", dNdxi, Jinv), dXdxi[..., None, :, :, :])
 
 
 def cartesian_slots(f: jax.Array, dXdxi: jax.Array) -> jax.Array:

@@ -476,7 +476,7 @@ def _element_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_old,
     nodal = functools.partial(_nodal_of, dNdxi, dXdxi=dXdxi, Jinv=Jinv)
 
     def stiffness(D):
-        G = el.cartesian_slots(jnp.einsum("gak,egkj->egaj", dNdxi, Jinv), dXdxi[:, None])  # (n_el, n_gp, 32, 3)
+        G = el.gradients_from_factors(dNdxi, Jinv, dXdxi)  # (n_el, n_gp, 32, 3)
         K = jnp.einsum("eg,egaj,egklij,egbl->eaibk", dV, G, D, G).reshape(n_el, 96, 96)  # D[k, l, i, j]
         return K if c is None else K + c * _full_mass(mass_e)
 
