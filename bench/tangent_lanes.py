@@ -1,0 +1,90 @@
+"""The consistent tangent through six C lanes against nine F lanes (``material.C_LANES``, only
+with ``git apply bench/patches/c_lanes_tangent.patch``; revert it afterwards), in
+one process, alternating: the material points' tangent and the element system (forces,
+tangent, stiffness) of the rolled tube (Model IV, 50 kV, 30 Hz) at a state part-way in.
+
+    python bench/tangent_lanes.py [--mesh 12x20x4] [--rounds 3]
+
+Prints per round and variant the median time (ms) of each, and the largest relative
+difference of the element matrices between the variants (they agree to round-off).
+
+Measured 2026-12-05 (2 cores): not kept. Tube 12x20x4, material points 183-207 ms (C) against
+188-234 ms (F), element system 233-254 against 244-263 ms; tube 4x8x1 element system 5.9-6.2
+against 5.4-6.3 ms; N1 alternated three times in one process 0.641/0.648/0.649 s (C) against
+0.657/0.612/0.633 s (F). A third fewer lanes did not take a third of the time: the per-point
+law at 25,920 points is a chain of memory-bound loops over (points, lanes, units, 3, 3)
+arrays (``bench/profile_ops.py``-style trace: no operation above 7 % of 258 ms), and dP/dF at
+fixed Cv (56 ms), dCv/dF (63 ms) and their cross term (~40 ms) each cost several times
+their primal (P 5.8 ms, the flow update 13 ms).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dejax import integrate as it
+from dejax import linsolve, scenarios
+from dejax import material as mat
+from dejax import model as mdl
+
+
+def timed(f, *args, repeat=10):
+    out = jax.block_until_ready(f(*args))
+    ts = []
+    for _ in range(repeat):
+        tic = time.perf_counter()
+        jax.block_until_ready(f(*args))
+        ts.append(time.perf_counter() - tic)
+    return 1e3 * float(np.median(ts)), out
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--mesh", default="12x20x4")
+    ap.add_argument("--steps", type=int, default=5, help="steps run before timing (a loaded state)")
+    ap.add_argument("--rounds", type=int, default=3)
+    a = ap.parse_args()
+    shape = tuple(int(s) for s in a.mesh.split("x"))
+    p = scenarios.rolled("IV", 30.0, 50e3, shape=shape)
+    m, load = p.model, p.loading
+    solver = linsolve.choose_solver(m.structure)
+    scheme, dt = p.scheme(), 1e-4
+    state = it.simulate(m, load, it.time_grid(a.steps * dt, dt), p.output_fn, scheme, solver=solver).check().final
+    t1 = state.t + dt
+    ctx = it._StepContext(state=state, t1=jnp.asarray(t1), phi1=load.phi(t1),
+                          u1=load.u(t1) if m.prescribed_dirs.shape[0] else jnp.zeros(0),
+                          f_ext=mdl.external_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
+    z = scheme.predict(state, dt, "velocity")[m.structure.free]
+    F = mdl.deformation_gradients(m, mdl.full_coordinates(m, z, ctx.u1))
+    E = mdl.nominal_field(m, ctx.phi1)
+    pg = mdl.pressure_at_points(m, state.p)
+    wmax = mdl.initial_history(m)
+    print(f"mesh {a.mesh}: {m.dV.shape[0]} elements, {m.dV.size} Gauss points, {m.material.n_units} units, "
+          f"mixed {m.structure.mixed}")
+    Ke = {}
+    for r in range(a.rounds):
+        for flag in (False, True):
+            mat.C_LANES = flag
+            jax.clear_caches()
+            if m.structure.mixed:
+                pt = jax.jit(lambda F_: mdl._per_point_mixed(mat.mixed_tangent_and_update)(
+                    F_, E, ctx.flow, dt, pg, m.material, wmax))
+            else:
+                pt = jax.jit(lambda F_: mdl._per_point(mat.stress_tangent_update_and_flow_tangent)(
+                    F_, E, ctx.flow, dt, m.material, wmax))
+            t_pt, _ = timed(pt, F)
+            sysf = jax.jit(lambda z, p: it._system(m, scheme, ctx, z, p))
+            t_sys, s = timed(sysf, z, state.p)
+            Ke[flag] = np.asarray(s.Ke)
+            name = "6 C lanes" if flag else "9 F lanes"
+            print(f"round {r}: {name}: material points {t_pt:8.2f} ms, element system {t_sys:8.2f} ms")
+    mat.C_LANES = True
+    print(f"max |Ke(C) - Ke(F)| / max |Ke(F)| = {np.max(np.abs(Ke[True] - Ke[False])) / np.max(np.abs(Ke[False])):.1e}")
+
+
+if __name__ == "__main__":
+    main()
