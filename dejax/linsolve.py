@@ -420,17 +420,26 @@ class SparseSolver(LinearSolver):
         return _HOST_THREAD.submit(self._host_solve_here, pattern, np.asarray(values), np.asarray(rhs)).result()
 
     def _host_solve_here(self, pattern, values, rhs):
+        """values (..., nnz), rhs (..., n) with broadcastable leading (vmapped) axes: one
+        factorization and one multi-right-hand-side solve where the values are shared (the
+        tangent lanes of a forward-mode derivative), else one per matrix."""
         backend = _available_backend(self.backend)
-        f = _CACHE.get(pattern, values, backend)
-        if rhs.ndim == 1:
-            return f(rhs).astype(rhs.dtype)
-        return np.stack([f(b) for b in rhs.reshape(-1, rhs.shape[-1])]).reshape(rhs.shape).astype(rhs.dtype)
+        n, nnz = rhs.shape[-1], values.shape[-1]
+        lead = np.broadcast_shapes(values.shape[:-1], rhs.shape[:-1])
+        B = np.broadcast_to(rhs, lead + (n,)).reshape(-1, n)
+        if values.size == nnz:
+            X = _CACHE.get(pattern, values.reshape(nnz), backend)(np.ascontiguousarray(B.T))
+            X = X.reshape(n, -1).T
+        else:
+            V = np.broadcast_to(values, lead + (nnz,)).reshape(-1, nnz)
+            X = np.stack([_CACHE.get(pattern, v, backend)(b) for v, b in zip(V, B)])
+        return X.reshape(lead + (n,)).astype(rhs.dtype)
 
     def solve_factored(self, model, values, rhs):
         p = mdl.assembly(model.structure)
         return jax.pure_callback(
             functools.partial(self._host_solve, p), jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), values, rhs,
-            vmap_method="sequential",
+            vmap_method="expand_dims",  # one host call for all lanes (``_host_solve_here``)
         )
 
     def solve(self, model, Ke, rhs):

@@ -290,3 +290,58 @@ def test_pardiso_solver_through_the_callback_equals_dense():
     bound = 10 * np.linalg.cond(K) * np.finfo(float).eps
     assert np.linalg.norm(x1 - xd) <= bound * np.linalg.norm(xd)
     assert np.max(np.abs(x2 - 2.0 * x1)) <= 1e-12 * np.max(np.abs(x1))
+
+
+def test_vmapped_sparse_solve_shares_one_factorization():
+    """Under ``jax.vmap`` the callback sees every lane at once: right-hand sides over one
+    matrix are solved by one factorization (the tangent lanes of a forward-mode
+    derivative), each equal to its own unbatched solve; lanes over different matrices
+    (batched values) are each solved with their own matrix, checked against numpy."""
+    m = scenarios.block(phi_max=12e3, shape=(1, 1, 1), t_ramp=0.05).model
+    E = mdl.nominal_field(m, jnp.array([8e3]))
+    _, Ke, _ = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
+    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    sp = linsolve.SparseSolver()
+    values = sp.factor(m, Ke)
+    B = jnp.asarray(np.random.default_rng(4).standard_normal((5, m.structure.n_free)))
+    linsolve.clear_factorizations()
+    before = linsolve._CACHE.factorizations
+    X = np.asarray(jax.jit(jax.vmap(lambda b: sp.solve_factored(m, values, b)))(B))
+    assert linsolve._CACHE.factorizations == before + 1
+    for x, b in zip(X, B):
+        x1 = np.asarray(sp.solve_factored(m, values, b))
+        assert np.max(np.abs(x - x1)) <= 1e-13 * np.max(np.abs(x1))
+    # two matrices (the second with one element's mass doubled), one right-hand side each
+    K = np.asarray(mdl.assemble_dense(m, Ke))
+    Ke2 = Ke.at[0].add(1e3 * mdl.mass_elements(m)[0])
+    V = jnp.stack([values, sp.factor(m, Ke2)])
+    X2 = np.asarray(jax.jit(jax.vmap(lambda v, b: sp.solve_factored(m, v, b)))(V, B[:2]))
+    for x, Kk, b in zip(X2, (K, np.asarray(mdl.assemble_dense(m, Ke2))), B[:2]):
+        xn = np.linalg.solve(Kk, np.asarray(b))
+        assert np.linalg.norm(x - xn) <= 1e-8 * np.linalg.norm(xn)
+
+
+def test_implicit_derivative_with_pardiso_equals_dense(monkeypatch):
+    """A dense forward run hands its steps' implicit derivatives to MKL Pardiso from
+    ``DERIVATIVE_SPARSE_FROM`` unknowns: forward-mode derivatives (three lanes, one host
+    call each step) and reverse mode equal the all-dense ones to round-off."""
+    pytest.importorskip("pypardiso")
+    times = it.time_grid(6e-3, 1e-3)
+
+    def x_end(theta):
+        mat = scenarios.rolled_material("IV", mu_inf=theta[0], eta=theta[1:] * jnp.ones(4))
+        p = scenarios.rolled(mat, 30.0, 50e3, h=2e-3, shape=(2, 4, 1))
+        return it.simulate(p.model, p.loading, times, p.output_fn).outputs["x_P"][-1]
+
+    theta = jnp.array([scenarios.rolled_material("IV").mu_inf, 2.0e3])
+    monkeypatch.setattr(it, "DERIVATIVE_SPARSE_FROM", 10**9)
+    dense_f = np.asarray(jax.jit(jax.jacfwd(x_end))(theta))
+    monkeypatch.setattr(it, "DERIVATIVE_SPARSE_FROM", 0)
+    jax.clear_caches()
+    before = linsolve._CACHE.factorizations
+    sparse_f = np.asarray(jax.jit(jax.jacfwd(x_end))(theta))
+    sparse_r = np.asarray(jax.jit(jax.grad(x_end))(theta))
+    assert linsolve._CACHE.factorizations > before  # Pardiso did factorize
+    assert np.all(np.abs(dense_f) > 0)
+    assert np.max(np.abs(sparse_f - dense_f)) <= 1e-10 * np.max(np.abs(dense_f))
+    assert np.max(np.abs(sparse_r - dense_f)) <= 1e-10 * np.max(np.abs(dense_f))
