@@ -50,6 +50,8 @@ def op_times(f, args, calls: int = 1):
             for ev in line.events:
                 if "ThunkExecutor" in ev.name:
                     continue  # the executor's own span, not an operation
+                if ev.name.startswith("$"):
+                    continue  # Python frames inside a host callback: its pure_callback span has them
                 totals[ev.name] += ev.duration_ns * 1e-9 / calls
     return totals
 
