@@ -14,7 +14,6 @@ Pardiso, in one process.
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
@@ -22,35 +21,19 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from dejax import bench, linsolve, scenarios  # noqa: E402
+from dejax import bench, linsolve  # noqa: E402
 from dejax import integrate as it  # noqa: E402
 from dejax import model as mdl  # noqa: E402
+from profile_step import loaded_step, timed  # noqa: E402
 
 DT = 6.666666666666667e-4
 
 
 def condensed_tangent(shape):
-    p = scenarios.rolled("IV", 30.0, 50e3, shape=shape)
-    m, load, scheme = p.model, p.loading, p.scheme()
-    state = it.simulate(m, load, it.time_grid(20 * DT, DT), p.output_fn, scheme).check().final
-    t1 = state.t + DT
-    ctx = it._StepContext(state=state, t1=jnp.asarray(t1), phi1=load.phi(t1), u1=jnp.zeros(0),
-                          f_ext=mdl.external_force(m), flow=mdl.flow_step(m, state, DT, scheme.flow_update))
-    z = scheme.predict(state, DT, "velocity")[m.structure.free]
+    p, _, state, ctx, z = loaded_step(shape, 20, DT)
+    m, scheme = p.model, p.scheme()
     s = jax.jit(lambda z, p: it._system(m, scheme, ctx, z, p))(z, state.p)
     return m, jax.jit(lambda s: mdl.condense(s.Ke, s.kup, mdl.newton_kpp(m, s.kpp)))(s)
-
-
-def timed(f, *args, fresh=False, repeat=30):
-    jax.block_until_ready(f(*args))
-    ts = []
-    for _ in range(repeat):
-        if fresh:
-            linsolve.clear_factorizations()
-        tic = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        ts.append(time.perf_counter() - tic)
-    return 1e3 * float(np.median(ts))
 
 
 def factor_and_solve(shape):
@@ -61,8 +44,9 @@ def factor_and_solve(shape):
         once = jax.jit(lambda K, r: solver.solve_factored(m, solver.factor(m, K), r))
         fac = jax.jit(lambda K: solver.factor(m, K))(Kc)
         twelve = jax.jit(lambda F, r: jax.vmap(lambda b: solver.solve_factored(m, F, b))(r))
+        t_once = timed(once, Kc, rhs, repeat=30, before=linsolve.clear_factorizations)[0]
         print(f"tube {'x'.join(map(str, shape))} ({n} unknowns) {name:<8} factorization + solve "
-              f"{timed(once, Kc, rhs, fresh=True):6.2f} ms, 12 solves {timed(twelve, fac, lanes):6.2f} ms")
+              f"{t_once:6.2f} ms, 12 solves {timed(twelve, fac, lanes, repeat=30)[0]:6.2f} ms")
 
 
 def g1(steps, rounds):

@@ -20,26 +20,14 @@ their primal (P 5.8 ms, the flow update 13 ms).
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from dejax import integrate as it
-from dejax import linsolve, scenarios
 from dejax import material as mat
 from dejax import model as mdl
-
-
-def timed(f, *args, repeat=10):
-    out = jax.block_until_ready(f(*args))
-    ts = []
-    for _ in range(repeat):
-        tic = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        ts.append(time.perf_counter() - tic)
-    return 1e3 * float(np.median(ts)), out
+from profile_step import loaded_step, timed
 
 
 def main():
@@ -48,17 +36,12 @@ def main():
     ap.add_argument("--steps", type=int, default=5, help="steps run before timing (a loaded state)")
     ap.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args()
+    if not hasattr(mat, "_tangent_lanes_via_C"):
+        raise SystemExit("the C lanes need `git apply bench/patches/c_lanes_tangent.patch`")
     shape = tuple(int(s) for s in a.mesh.split("x"))
-    p = scenarios.rolled("IV", 30.0, 50e3, shape=shape)
-    m, load = p.model, p.loading
-    solver = linsolve.choose_solver(m.structure)
-    scheme, dt = p.scheme(), 1e-4
-    state = it.simulate(m, load, it.time_grid(a.steps * dt, dt), p.output_fn, scheme, solver=solver).check().final
-    t1 = state.t + dt
-    ctx = it._StepContext(state=state, t1=jnp.asarray(t1), phi1=load.phi(t1),
-                          u1=load.u(t1) if m.prescribed_dirs.shape[0] else jnp.zeros(0),
-                          f_ext=mdl.external_force(m), flow=mdl.flow_step(m, state, dt, scheme.flow_update))
-    z = scheme.predict(state, dt, "velocity")[m.structure.free]
+    dt = 1e-4
+    p, _, state, ctx, z = loaded_step(shape, a.steps, dt)
+    m, scheme = p.model, p.scheme()
     F = mdl.deformation_gradients(m, mdl.full_coordinates(m, z, ctx.u1))
     E = mdl.nominal_field(m, ctx.phi1)
     pg = mdl.pressure_at_points(m, state.p)
@@ -76,9 +59,9 @@ def main():
             else:
                 pt = jax.jit(lambda F_: mdl._per_point(mat.stress_tangent_update_and_flow_tangent)(
                     F_, E, ctx.flow, dt, m.material, wmax))
-            t_pt, _ = timed(pt, F)
+            t_pt, _ = timed(pt, F, repeat=10)
             sysf = jax.jit(lambda z, p: it._system(m, scheme, ctx, z, p))
-            t_sys, s = timed(sysf, z, state.p)
+            t_sys, s = timed(sysf, z, state.p, repeat=10)
             Ke[flag] = np.asarray(s.Ke)
             name = "6 C lanes" if flag else "9 F lanes"
             print(f"round {r}: {name}: material points {t_pt:8.2f} ms, element system {t_sys:8.2f} ms")

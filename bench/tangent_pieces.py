@@ -7,7 +7,7 @@ and flow update, the flow update alone, its nine F lanes (dCv/dF), P at fixed Cv
 """
 import time, jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
-from dejax import material as mat, scenarios, model as mdl
+from dejax import material as mat, scenarios
 M = scenarios.rolled("IV", 30.0, 50e3, shape=(4, 8, 1)).model.material
 N = 25920
 rng = np.random.default_rng(0)
