@@ -371,12 +371,25 @@ def _residual(model: Model, scheme, ctx: _StepContext, z, p):
     return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g, Cv1
 
 
-def _system(model: Model, scheme, ctx: _StepContext, z, p):
-    """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
+def _matrix_terms(model: Model, scheme, ctx: _StepContext, z):
+    """(q, E, h, c) of the iteration matrix at z: coordinates, field, step and the mass
+    coefficient c = beta' + gamma' c_d (None without inertia)."""
     q, E, h, _ = _step_terms(model, scheme, ctx, z)
     bp, gp = scheme.matrix_coefficients(h)
-    c = bp + gp * model.damping if scheme.inertial else None
+    return q, E, h, (bp + gp * model.damping if scheme.inertial else None)
+
+
+def _system(model: Model, scheme, ctx: _StepContext, z, p):
+    """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
+    q, E, h, c = _matrix_terms(model, scheme, ctx, z)
     return mdl.element_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
+
+
+def _condensed_system(model: Model, scheme, ctx: _StepContext, z, p):
+    """(Kc, kup, kpp) of the mixed form at (z, p): the iteration matrix of ``_system`` with
+    the pressures condensed (``model.condensed_system``)."""
+    q, E, h, c = _matrix_terms(model, scheme, ctx, z)
+    return mdl.condensed_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
 
 
 def _shear_scale(model: Model):
@@ -458,11 +471,10 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
     (custom_jvp)."""
 
     def factor(model, ctx, z, p):
-        sys = _system(model, scheme, ctx, z, p)
         if not model.structure.mixed:
-            return (solver.factor(model, sys.Ke),)
-        kpp = mdl.newton_kpp(model, sys.kpp)
-        return solver.factor(model, mdl.condense(sys.Ke, sys.kup, kpp)), sys.kup, kpp
+            return (solver.factor(model, _system(model, scheme, ctx, z, p).Ke),)
+        Kc, kup, kpp = _condensed_system(model, scheme, ctx, z, p)
+        return solver.factor(model, Kc), kup, kpp
 
     def direction(model, fac, ru, g):
         if not model.structure.mixed:

@@ -562,6 +562,27 @@ def _condense_of(Ke, kup, kpp):
     return Ke - jnp.einsum("eka,ekb->eab", kup, jnp.linalg.solve(kpp, kup))
 
 
+def condensed_system(model: Model, q, E, Cv_old, dt, p, wmax=None, mass_coefficient=None):
+    """(Kc, kup, kpp) of the mixed form's Newton matrix: the element matrices with the
+    pressures condensed, Kc = Ke - kup^T kpp^-1 kup (n_el, 96, 96), kpp = ``newton_kpp``
+    (arguments as ``element_system``). The same as ``condense`` of ``element_system``'s
+    matrices, but each chunk of elements (``over_element_chunks``) is condensed as it is
+    made, so the uncondensed matrices of the whole mesh are never stored (70 MB on the
+    paper's tube, written, zero-initialized and copied by the chunk loop)."""
+    F = deformation_gradients(model, q)
+    body = functools.partial(_condensed_system_of, model.material, _basis(model), model.dNdxi, dt, mass_coefficient)
+    return over_element_chunks(body, model.dV, model.dXdxi, model.Jinv, F, E, Cv_old, pressure_at_points(model, p),
+                               _history(model, wmax), model.mass_e, newton_kpp(model, None))
+
+
+def _condensed_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_old, p, wmax, mass_e, kpp_newton):
+    """``condensed_system`` of a set of elements (``_element_system_of``'s arguments, and
+    ``newton_kpp``'s block where K = inf, else None)."""
+    s = _element_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_old, p, wmax, mass_e)
+    kpp = s.kpp if kpp_newton is None else kpp_newton
+    return _condense_of(s.Ke, s.kup, kpp), s.kup, kpp
+
+
 def pressure_force(kup, kpp, g):
     """(n_el, 96) kup^T kpp^-1 g: what condensation subtracts from the element forces."""
     return jnp.einsum("eka,ek->ea", kup, jnp.linalg.solve(kpp, g[..., None])[..., 0])

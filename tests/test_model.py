@@ -255,7 +255,8 @@ def test_element_chunks_equal_the_whole_mesh(monkeypatch, volumetric, chunk):
     """Large meshes evaluate the element system and forces a chunk of elements at a time
     (``mdl.over_element_chunks``); with chunks forced on a 16-element tube (5 chunks of 3
     and a remainder of 1; or the divisor nearest 3: 8 chunks of 2) they equal the
-    whole-mesh evaluation, forces' jvp and the condensed matrices included, and the mass
+    whole-mesh evaluation, forces' jvp and the condensed matrices included (condensed after
+    the element system, and chunk by chunk as ``mdl.condensed_system`` does), and the mass
     coefficient adds c M_e to every element matrix."""
     from dejax import scenarios as sc
 
@@ -274,6 +275,12 @@ def test_element_chunks_equal_the_whole_mesh(monkeypatch, volumetric, chunk):
         plain = jax.jit(lambda q: mdl.element_system(m, q, E, flow, 1e-3, p, None))(q)
         forces = jax.jit(lambda q, dq: jax.jvp(lambda q: mdl.element_forces(m, q, E, flow, 1e-3, p, None), (q,), (dq,)))(q, dq)
         condensed = jax.jit(mdl.condense)(sys.Ke, sys.kup, sys.kpp) if m.structure.mixed else None
+        if m.structure.mixed:  # condensed chunk by chunk as made: the same matrices
+            fused = jax.jit(lambda q: mdl.condensed_system(m, q, E, flow, 1e-3, p, None, mass_coefficient=2e5))(q)
+            np.testing.assert_allclose(np.asarray(fused[0]), np.asarray(condensed), rtol=0,
+                                       atol=1e-13 * float(jnp.max(jnp.abs(condensed))))
+            np.testing.assert_array_equal(np.asarray(fused[1]), np.asarray(sys.kup))
+            np.testing.assert_array_equal(np.asarray(fused[2]), np.asarray(sys.kpp))
         return sys, plain, forces, condensed
 
     whole = evaluate()
