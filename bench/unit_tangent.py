@@ -45,6 +45,7 @@ from dejax import bench, scenarios  # noqa: E402
 from dejax import integrate as it  # noqa: E402
 from dejax import material as mat  # noqa: E402
 from dejax import model as mdl  # noqa: E402
+from profile_step import timed  # noqa: E402
 
 
 @jax.jit
@@ -72,16 +73,6 @@ def use(variant):
     jax.clear_caches()
 
 
-def median_ms(f, args, repeat=15):
-    jax.block_until_ready(f(*args))
-    ts = []
-    for _ in range(repeat):
-        tic = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        ts.append(time.perf_counter() - tic)
-    return 1e3 * float(np.median(ts))
-
-
 def points(n, reps):
     m = scenarios.rolled("IV", 30.0, 50e3, shape=(4, 8, 1)).model.material
     rng = np.random.default_rng(0)
@@ -94,7 +85,7 @@ def points(n, reps):
     D = {k: np.asarray(f(F, E, Cv, p)[2]) for k, f in fs.items()}
     diff = np.max(np.abs(D["closed"] - D["lanes"])) / np.max(np.abs(D["lanes"]))
     for r in range(reps):
-        print(f"{n} points, round {r}: " + ", ".join(f"{k} {median_ms(f, (F, E, Cv, p)):.2f} ms" for k, f in fs.items())
+        print(f"{n} points, round {r}: " + ", ".join(f"{k} {timed(f, F, E, Cv, p, repeat=15)[0]:.2f} ms" for k, f in fs.items())
               + f"; D differs by {diff:.1e}", flush=True)
 
 
