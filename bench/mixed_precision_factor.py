@@ -61,7 +61,7 @@ def main():
     for name, dtype in (("double", np.float64), ("single", np.float32)):
         h = linsolve._PardisoPattern(lib, pattern)
         h.iparm[27] = int(dtype == np.float32)
-        av = np.ascontiguousarray(values[h.upper.take], dtype=dtype)
+        av = np.ascontiguousarray(values[pattern.upper], dtype=dtype)
         z = np.zeros((h.n, 1), dtype=dtype, order="F")
         linsolve._check_mkl(h.call(11, 1, av, z)[1], 11)
         t_fac, _ = best(lambda: linsolve._check_mkl(h.call(22, 1, av, z)[1], 22))

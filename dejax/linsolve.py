@@ -217,24 +217,29 @@ class _PardisoFactor:
 
 class _UpperPattern:
     """The upper triangle of a structurally symmetric CSC pattern as a zero-based CSR
-    pattern (for a symmetric matrix, CSC column j's rows i >= j are CSR row j's columns):
-    ``take`` (nnz_upper,) picks its values from the CSC value array in CSR order; ``mirror``
-    (nnz,) is the position of each entry's transpose, for the symmetry check."""
+    pattern (for a symmetric matrix, CSC column j's rows i >= j are CSR row j's columns),
+    whose values are ``pattern.upper``'s (``model.assemble_upper``)."""
 
     def __init__(self, pattern: mdl.Assembly):
         rows, cols, n = pattern.rows, pattern.cols, pattern.n
         lower = rows >= cols
-        self.take = np.flatnonzero(lower)
         self.indices = np.ascontiguousarray(rows[lower], dtype=np.int32)
         self.indptr = np.searchsorted(cols[lower], np.arange(n + 1)).astype(np.int32)
+        self.pattern = pattern
+
+    @functools.cached_property
+    def full(self) -> np.ndarray:
+        """(nnz,) the position in the upper values of every entry of the full CSC pattern
+        (its own, or its transpose's): ``upper_values[full]`` is the symmetric matrix's CSC
+        value array."""
+        rows, cols, n = self.pattern.rows, self.pattern.cols, self.pattern.n
         key = cols.astype(np.int64) * n + rows  # sorted: the CSC order
-        self.mirror = np.minimum(np.searchsorted(key, rows.astype(np.int64) * n + cols), key.size - 1)
-        if not np.array_equal(key[self.mirror], rows.astype(np.int64) * n + cols):
+        mirror = np.searchsorted(key, rows.astype(np.int64) * n + cols)
+        if not np.array_equal(key[np.minimum(mirror, key.size - 1)], rows.astype(np.int64) * n + cols):
             raise ValueError("the sparsity pattern is not structurally symmetric")
-
-
-SYMMETRY_RTOL = 1e-10
-"""A matrix whose largest |A - A^T| exceeds this times its largest |A| is factorized by LU."""
+        number = np.full(key.size, -1, dtype=np.int64)
+        number[self.pattern.upper] = np.arange(self.pattern.upper.size)
+        return np.where(rows >= cols, number, number[mirror])
 
 
 class _PardisoPattern:
@@ -274,10 +279,11 @@ class _PardisoPattern:
                          x.ctypes.data_as(f64), ctypes.byref(err))
         return x, err.value
 
-    def cholesky(self, values: np.ndarray) -> "_PardisoCholesky | None":
-        """The Cholesky factorization of the symmetric matrix with CSC ``values``, or None
-        where MKL finds it not positive definite (error -4)."""
-        a = np.ascontiguousarray(values[self.upper.take])
+    def cholesky(self, upper_values: np.ndarray) -> "_PardisoCholesky | None":
+        """The Cholesky factorization of the symmetric matrix with upper triangle
+        ``upper_values`` (``model.assemble_upper``'s order), or None where MKL finds it not
+        positive definite (error -4)."""
+        a = np.ascontiguousarray(upper_values, dtype=np.float64)
         z = np.zeros((self.n, 1), order="F")
         if not self.analysed:
             _check_mkl(self.call(11, 1, a, z)[1], 11)
@@ -350,24 +356,21 @@ def _mkl():
 _MKL = None
 
 
-def _is_symmetric(upper: _UpperPattern, values: np.ndarray) -> bool:
-    scale = np.max(np.abs(values), initial=0.0)
-    return bool(np.max(np.abs(values - values[upper.mirror]), initial=0.0) <= SYMMETRY_RTOL * scale)
-
-
 def _factorize(pattern: mdl.Assembly, values: np.ndarray, backend: str):
+    """A solve function of the matrix with ``values``: CSC values (``model.assemble_values``)
+    for SuperLU; for Pardiso the upper triangle of the symmetric matrix
+    (``model.assemble_upper``)."""
     if backend == "pardiso":
         import pypardiso  # optional
 
         handle = _PARDISO.get(pattern)
         if handle is None:
             handle = _PARDISO[pattern] = _PardisoPattern(_mkl(), pattern)
-        if _is_symmetric(handle.upper, values):
-            f = handle.cholesky(values)
-            if f is not None:
-                return f
-        # not symmetric, or not positive definite (past an instability): LU
-        return _PardisoFactor(pypardiso.PyPardisoSolver(), _csc(pattern, values).tocsr())
+        f = handle.cholesky(values)
+        if f is not None:
+            return f
+        # not positive definite (past an instability): LU of the whole symmetric matrix
+        return _PardisoFactor(pypardiso.PyPardisoSolver(), _csc(pattern, values[handle.upper.full]).tocsr())
     A = _csc(pattern, values)
     from scipy.sparse.linalg import splu
 
@@ -381,13 +384,12 @@ def _factorize(pattern: mdl.Assembly, values: np.ndarray, backend: str):
 _PARDISO: "weakref.WeakKeyDictionary[mdl.Assembly, _PardisoPattern]" = weakref.WeakKeyDictionary()
 
 
-def _available_backend(requested: str) -> str:
+def _available_backend(requested: str, warn: bool = True) -> str:
     if requested == "pardiso":
         if pardiso_available():
             return "pardiso"
-        else:
+        if warn:
             warnings.warn("pypardiso is not installed: falling back to scipy SuperLU", RuntimeWarning, stacklevel=3)
-            return "superlu"
     return "superlu"
 
 
@@ -397,20 +399,29 @@ class SparseSolver(LinearSolver):
     The sparsity pattern of T^T K T is static (from the connectivity, numpy, once); the
     values are summed from the element matrices inside jit; the factorization runs on the
     host (scipy SuperLU with a COLAMD ordering, or MKL Pardiso if pypardiso is installed
-    and it is requested: Cholesky where the matrix is symmetric positive definite, LU where
-    not) through ``jax.pure_callback``. ``factor`` returns the value
-    array; ``solve_factored`` looks the factorization up by those values, so a stale
-    factorization carried through the scan is reused without refactoring. ``solve`` is
-    wrapped in ``jax.lax.custom_linear_solve`` (symmetric) so jvp, vjp and vmap work.
+    and it is requested: Cholesky where the matrix is positive definite, LU where not)
+    through ``jax.pure_callback``. ``factor`` returns the value array (for Pardiso the
+    upper triangle alone, ``model.assemble_upper``: the iteration matrix is symmetric, as
+    the second derivative of the step's energy with the pressures condensed, asserted for
+    every material option in tests/test_model.py; half the gather, no symmetry check on
+    the host: N1 0.583/0.573 -> 0.516/0.510 s, alternated runs of ``bench.case_N1``); ``solve_factored`` looks the
+    factorization up by those values, so a stale factorization carried through the scan is
+    reused without refactoring. ``solve`` is wrapped in ``jax.lax.custom_linear_solve``
+    (symmetric) so jvp, vjp and vmap work.
     """
 
     backend: str = eqx.field(default="superlu", static=True)
 
+    def _upper(self) -> bool:
+        """Whether the values are the upper triangle alone (Pardiso's Cholesky reads it)."""
+        return _available_backend(self.backend, warn=False) == "pardiso"
+
     def factor(self, model, Ke):
-        return mdl.assemble_values(model, Ke)
+        return mdl.assemble_upper(model, Ke) if self._upper() else mdl.assemble_values(model, Ke)
 
     def empty(self, model):
-        return jnp.zeros(mdl.assembly(model.structure).nnz)
+        a = mdl.assembly(model.structure)
+        return jnp.zeros(a.upper.size if self._upper() else a.nnz)
 
     def _host_solve(self, pattern, values, rhs):
         # on one dedicated thread: XLA runs host callbacks on varying threads, and a SuperLU
@@ -444,16 +455,28 @@ class SparseSolver(LinearSolver):
 
     def solve(self, model, Ke, rhs):
         p = mdl.assembly(model.structure)
-        values = mdl.assemble_values(model, Ke)
-        rows, cols = jnp.asarray(p.rows), jnp.asarray(p.cols)
+        values = self.factor(model, Ke)
+        if self._upper():
+            matvec = functools.partial(_upper_matvec, p, values)
+        else:
+            rows, cols = jnp.asarray(p.rows), jnp.asarray(p.cols)
 
-        def matvec(x):
-            return jax.ops.segment_sum(values * x[cols], rows, num_segments=p.n)
+            def matvec(x):
+                return jax.ops.segment_sum(values * x[cols], rows, num_segments=p.n)
 
         def solve(_, b):
             return self.solve_factored(model, jax.lax.stop_gradient(values), b)
 
         return jax.lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+
+
+def _upper_matvec(pattern: mdl.Assembly, upper_values, x):
+    """A x for the symmetric matrix A with upper triangle ``upper_values``
+    (``model.assemble_upper``): each off-diagonal entry stands for itself and its mirror."""
+    rows, cols = jnp.asarray(pattern.rows[pattern.upper]), jnp.asarray(pattern.cols[pattern.upper])
+    half = jnp.where(rows == cols, 0.5, 1.0) * upper_values
+    return (jax.ops.segment_sum(half * x[cols], rows, num_segments=pattern.n)
+            + jax.ops.segment_sum(half * x[rows], cols, num_segments=pattern.n))
 
 
 def clear_factorizations() -> None:

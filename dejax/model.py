@@ -693,6 +693,17 @@ class _GatherPlan:
         self.index[t[first], rank[first]] = src[first]
         self.extra_source, self.extra_target = src[~first].astype(itype), t[~first].astype(itype)
 
+    def restricted(self, targets: np.ndarray) -> "_GatherPlan":
+        """The plan of the sums of ``targets`` (increasing target numbers) alone, numbered
+        0, 1, ... in that order."""
+        plan = object.__new__(_GatherPlan)
+        plan.index = self.index[targets]
+        number = np.full(self.index.shape[0], -1, dtype=self.index.dtype)
+        number[targets] = np.arange(targets.size)
+        kept = number[self.extra_target] >= 0
+        plan.extra_source, plan.extra_target = self.extra_source[kept], number[self.extra_target[kept]]
+        return plan
+
     def __call__(self, values: jax.Array) -> jax.Array:
         """(n_targets,) + values.shape[1:]: the sums over the leading axis of ``values``."""
         padded = jnp.concatenate([values, jnp.zeros((1,) + values.shape[1:], values.dtype)])
@@ -732,6 +743,19 @@ class Assembly:
         self.reduce_entries = _GatherPlan(structure.col, n, structure.n_dofs)
         self.slot_entries = _GatherPlan(structure.slots.reshape(-1), structure.n_dofs // 3, structure.slots.size)
 
+    @functools.cached_property
+    def upper(self) -> np.ndarray:
+        """(nnz_upper,) positions in the CSC order of the entries with row >= column: column
+        j's rows i >= j, which for a symmetric matrix are the upper triangle's row j as CSR
+        (what MKL Pardiso reads of a symmetric matrix)."""
+        return np.flatnonzero(self.rows >= self.cols)
+
+    @functools.cached_property
+    def upper_entries(self) -> _GatherPlan:
+        """The gather of ``upper``'s entries alone from the element matrices (``entries``
+        restricted to them: half the work)."""
+        return self.entries.restricted(self.upper)
+
 
 _ASSEMBLIES: dict = {}
 _ASSEMBLY_OF = weakref.WeakKeyDictionary()  # structure object -> its Assembly (no hashing of arrays per call)
@@ -753,6 +777,12 @@ def assemble_values(model: Model, Ke: jax.Array) -> jax.Array:
     """(nnz,) entries of T^T K T in ``assembly(model.structure)``'s (CSC) order, from the
     element matrices Ke (n_el, 96, 96)."""
     return assembly(model.structure).entries(Ke.reshape(-1))
+
+
+def assemble_upper(model: Model, Ke: jax.Array) -> jax.Array:
+    """(nnz_upper,) entries of T^T K T in ``assembly(model.structure).upper`` (a symmetric
+    matrix's upper triangle as CSR), from the element matrices Ke (n_el, 96, 96)."""
+    return assembly(model.structure).upper_entries(Ke.reshape(-1))
 
 
 def assemble_dense(model: Model, Ke: jax.Array) -> jax.Array:
