@@ -214,7 +214,8 @@ def test_gathered_assembly_equals_the_scatter_loop():
     """T^T K T, T^T r and the slot sums are gathers of precomputed entries (``mdl.assembly``);
     on the torsional strip (clamped end: dropped coordinates; the far face's common axial
     position: tied ones, summed) they equal numpy's unbuffered scatter-add over the elements, and the sparse values
-    (CSC order) are the dense matrix's entries at the pattern. The tied face's entries sum
+    (CSC order) are the dense matrix's entries at the pattern, those of its upper triangle
+    alone (``mdl.assemble_upper``) as well. The tied face's entries sum
     more contributions than one gather row holds (``mdl.GATHER_WIDTH``): their surplus is
     scattered, and checked here as well."""
     from dejax import scenarios as sc
@@ -240,6 +241,12 @@ def test_gathered_assembly_equals_the_scatter_loop():
     assert np.count_nonzero(ref) == a.nnz and np.all(np.diff(a.cols.astype(np.int64) * n + a.rows) > 0)
     # the tied coordinates have more contributions than one gather row holds: the surplus path ran
     assert a.entries.extra_source.size > 0 and a.reduce_entries.extra_source.size > 0
+    # the upper triangle alone (what Pardiso's Cholesky reads), surplus entries included
+    upper = np.asarray(mdl.assemble_upper(m, jnp.asarray(Ke)))
+    rows, cols = a.rows[a.upper], a.cols[a.upper]
+    assert np.all(rows >= cols) and a.upper.size == np.count_nonzero(a.rows >= a.cols)
+    np.testing.assert_allclose(upper, ref[rows, cols], rtol=1e-13, atol=1e-13)
+    assert a.upper_entries.extra_source.size > 0
 
     red = np.zeros(n + 1)
     np.add.at(red, np.where(s.col >= 0, s.col, n), r)
