@@ -99,6 +99,8 @@ VARIANTS = {
     "minimum degree (iparm[1]=0)": {1: 0},
     "two-level factorization (iparm[23]=1)": {23: 1},
     "parallel METIS + two-level": {1: 3, 23: 1},
+    "variable-block storage (iparm[36]=-80)": {36: -80},
+    "variable-block storage (iparm[36]=-95)": {36: -95},
 }
 
 
