@@ -221,10 +221,9 @@ class _UpperPattern:
     whose values are ``pattern.upper``'s (``model.assemble_upper``)."""
 
     def __init__(self, pattern: mdl.Assembly):
-        rows, cols, n = pattern.rows, pattern.cols, pattern.n
-        lower = rows >= cols
-        self.indices = np.ascontiguousarray(rows[lower], dtype=np.int32)
-        self.indptr = np.searchsorted(cols[lower], np.arange(n + 1)).astype(np.int32)
+        upper = pattern.upper
+        self.indices = np.ascontiguousarray(pattern.rows[upper], dtype=np.int32)
+        self.indptr = np.searchsorted(pattern.cols[upper], np.arange(pattern.n + 1)).astype(np.int32)
         self.pattern = pattern
 
     @functools.cached_property
@@ -400,14 +399,14 @@ class SparseSolver(LinearSolver):
     values are summed from the element matrices inside jit; the factorization runs on the
     host (scipy SuperLU with a COLAMD ordering, or MKL Pardiso if pypardiso is installed
     and it is requested: Cholesky where the matrix is positive definite, LU where not)
-    through ``jax.pure_callback``. ``factor`` returns the value array (for Pardiso the
-    upper triangle alone, ``model.assemble_upper``: the iteration matrix is symmetric, as
+    through ``jax.pure_callback``. ``factor`` returns the value array: for Pardiso the
+    upper triangle alone (``model.assemble_upper``; the iteration matrix is symmetric, as
     the second derivative of the step's energy with the pressures condensed, asserted for
-    every material option in tests/test_model.py; half the gather, no symmetry check on
-    the host: N1 0.583/0.573 -> 0.516/0.510 s, alternated runs of ``bench.case_N1``); ``solve_factored`` looks the
-    factorization up by those values, so a stale factorization carried through the scan is
-    reused without refactoring. ``solve`` is wrapped in ``jax.lax.custom_linear_solve``
-    (symmetric) so jvp, vjp and vmap work.
+    every material option in tests/test_model.py): half the gather and no symmetry check
+    on the host (N1 0.583/0.573 -> 0.516/0.510 s in alternated runs of ``bench.case_N1``).
+    ``solve_factored`` looks the factorization up by those values, so a stale
+    factorization carried through the scan is reused without refactoring. ``solve`` is
+    wrapped in ``jax.lax.custom_linear_solve`` (symmetric) so jvp, vjp and vmap work.
     """
 
     backend: str = eqx.field(default="superlu", static=True)

@@ -720,8 +720,10 @@ class Assembly:
     rows, cols (nnz,): the entries in column-major (CSC) order; indptr (n_free + 1,);
     entries: the sum of the positions in ``Ke.reshape(-1)`` (n_el * 96 * 96) that make up
     every entry (a ``_GatherPlan``); dense_index (nnz,): the entry's row-major position in
-    the dense (n_free, n_free) matrix. Gathering element matrix entries and summing them costs 1.1 ms on the tube 4x8x1
-    (720 unknowns) where the scatter-add of the element matrices took 7-10 ms."""
+    the dense (n_free, n_free) matrix; upper, upper_entries: the entries with row >= column
+    and their gather (a symmetric matrix's upper triangle, what MKL Pardiso's Cholesky
+    reads). Gathering element matrix entries and summing them costs 1.1 ms on the tube
+    4x8x1 (720 unknowns) where the scatter-add of the element matrices took 7-10 ms."""
 
     def __init__(self, structure: Structure):
         e = structure.col[structure.edofs]  # (n_el, 96) reduced index, -1 constrained
