@@ -47,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import integrate as it
-from . import linsolve, loads, scenarios
+from . import linsolve, scenarios
 
 
 def _peak_rss_mb() -> float:
@@ -381,7 +381,7 @@ def case_N1(dt=TUBE_DT, solver="auto", repeat=5) -> dict:
 
 
 def case_S1(max_steps=50, dt=1e-4):
-    rows = [case_R(f"S1", shape, max_steps=max_steps, dt=dt) for shape in S1_SHAPES]
+    rows = [case_R("S1", shape, max_steps=max_steps, dt=dt) for shape in S1_SHAPES]
     n = np.array([r["coordinates"] for r in rows], float)
     per_step = np.array([1.0 / r["steps_per_s"] for r in rows])
     slope = float(np.polyfit(np.log(n), np.log(per_step), 1)[0])

@@ -665,7 +665,6 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
     traces = []
     names = set()
     for i, t in tf.array_of_tables(traces_doc, TRACE_KEYS, "traces", "[[traces]] table"):
-        key = f"traces[{i}]"
         if "file" not in t:
             raise tf.error(f"[[traces]] #{i} lacks 'file'", "traces")
         if not isinstance(t["file"], str):
@@ -683,7 +682,7 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
         if name in names:
             raise tf.error(f"duplicate trace name '{name}' (give each [[traces]] a unique 'name')", "traces.name")
         names.add(name)
-        conditions = tf.table(t.get("conditions", {}), f"traces.conditions")
+        conditions = tf.table(t.get("conditions", {}), "traces.conditions")
         for k, v in conditions.items():
             if not (is_number(v) or isinstance(v, (str, bool))):
                 raise tf.error(f"condition '{k}' must be a number, string or boolean, got {v!r}",
@@ -695,7 +694,7 @@ def _load_traces(tf: _Toml, doc, scenario) -> tuple[Trace, ...]:
         loading = t.get("loading")
         if loading is not None:
             loading = check_loading(dict(tf.table(loading, "traces.loading")), tf.path,
-                                     f"traces.loading")
+                                     "traces.loading")
             for k in ("freq", "phi_max"):
                 if k in loading and k in conditions and is_number(conditions[k]) and not math.isclose(
                         loading[k], conditions[k], rel_tol=1e-12):

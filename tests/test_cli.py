@@ -1,7 +1,6 @@
 """Command-line contract of issue 2: `dejax run block ...` writes /time and
 /outputs/lateral_stretch with parameters as attributes; bad input exits 2 and
 never leaves a file behind."""
-import os
 import subprocess
 import sys
 

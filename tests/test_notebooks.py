@@ -2,7 +2,6 @@
 
 Each notebook compiles a few steppers (~15-80 s each on 2 shared CPU cores), so this is
 marked slow: ``pytest --runslow tests/test_notebooks.py``."""
-import os
 from pathlib import Path
 
 import numpy as np

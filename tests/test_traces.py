@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 
-from fitting.schema import DataError
 from fitting.traces import Trace, from_samples, load_trace_csv
 from helpers import CSV, raises  # noqa: E402  (tests/helpers.py)
 
