@@ -575,7 +575,9 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         model, ctx, z0, p0, fac, valid = primals
         dmodel, dctx = tangents[0], tangents[1]
         out = newton(model, ctx, z0, p0, fac, valid)
-        z, p = out[0], out[1]
+        # named, so that a rematerialized step (reverse mode) linearizes at the kept solution
+        # instead of running its Newton iterations again
+        z, p = (checkpoint_name(x, STEP_SOLUTION) for x in out[:2])
         _, (dru, dg, dCv) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p), (model, ctx), (dmodel, dctx))
         sys = _system(model, scheme, ctx, z, p)
         dz, dp = _implicit_solve(model, solver, sys, dru, dg)
@@ -711,6 +713,9 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
                 jnp.where(inverted, int(Status.INVERTED), jnp.where(gent, int(Status.GENT_LIMIT), 0)),
             ),
         )
+        # kept as well: the step's state is selected by it, and recomputing it would run the
+        # Newton iterations again (and keep each step's factorization for them)
+        status = checkpoint_name(status, STEP_SOLUTION)
         return new, it, nfac, status, fac
 
     step.solver = solver
