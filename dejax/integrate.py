@@ -833,7 +833,7 @@ def make_user_step(step, control: StepControl):
     return user_step
 
 
-# the name of each step's converged unknowns (z, p, Cv): what a rematerialized scan keeps
+# the name of each step's converged unknowns (z, p, Cv) and status: what a rematerialized scan keeps
 STEP_SOLUTION = "dejax_step_solution"
 
 
@@ -843,8 +843,8 @@ def make_scan(step, output_fn: Callable, control: StepControl | None = None, rem
     skipping inactive entries (padding) and every step after a failure. With ``control``
     each grid step is taken in sub-steps with cut-back (``make_user_step``); without it,
     in one step (a failure is final). ``remat``: each step is rematerialized in reverse
-    mode (``jax.checkpoint`` keeping only the carry and the converged unknowns), so a
-    reverse pass stores O(state) per step instead of the step's linearization (element
+    mode (``jax.checkpoint`` keeping only the carry, the converged unknowns and the status),
+    so a reverse pass stores O(state) per step instead of the step's linearization (element
     matrices, factorization): its memory then grows with the number of steps times the
     state size, at the cost of one more assembly and factorization per step."""
     user_step = make_user_step(step, control) if control is not None else None
