@@ -26,6 +26,12 @@ time (rate x steps), marked "projected" in the table; without it every case runs
 full. Times are wall-clock seconds on this machine after compilation; "compile" is the
 XLA compile time of the case's program.
 
+The machine's speed (``cpu_reference``: seconds of ``sum(range(10**8))`` in pure Python, one
+core) is measured before and after the cases and printed beside the table: figures from
+runs at different references are not comparable, and a reference that changed by more than
+20 % during the run says the machine's load changed under it (its ratios, G1 against its
+forward run or N1 against FElupe, then mix two speeds).
+
 Accuracy (issue 10: speed may not cost accuracy): with ``--reference`` the tube cases
 also run a reference on the same mesh and time span (dt = 1e-4 s, Newton converged to a
 relative residual of 1e-10, tighter than full Newton at the default 1e-6: the converged
@@ -75,6 +81,28 @@ REFERENCE_TOL = 1e-10
 # over 100 steps within 5.5e-4 (relative, per parameter) of Newton to 1e-6.
 TUBE_DT = 1.0 / 1500.0
 TUBE_NEWTON_TOL = 1e-2
+
+
+CPU_REFERENCE_CHANGE = 0.2
+"""Relative change of the CPU reference during a run above which ``dejax bench`` warns."""
+
+
+def cpu_reference(n: int = 10 ** 8) -> float:
+    """Seconds of ``sum(range(n))`` in pure Python (one core): the machine-speed yardstick
+    printed beside every bench run (1.1-2.7 s on the project's shared 2-core machines)."""
+    tic = time.perf_counter()
+    sum(range(n))
+    return time.perf_counter() - tic
+
+
+def speed_note(before: float, after: float) -> str | None:
+    """A warning when the CPU reference changed by more than ``CPU_REFERENCE_CHANGE`` from
+    ``before`` to ``after`` (s), else None."""
+    change = abs(after - before) / min(before, after)
+    if change <= CPU_REFERENCE_CHANGE:
+        return None
+    return (f"warning: the CPU reference changed by {100 * change:.0f} % during the run ({before:.2f} -> {after:.2f} s): "
+            "the machine's load changed, so these timings and their ratios mix two speeds; run again")
 
 
 def reference_path(key: str) -> Path:
@@ -185,7 +213,8 @@ def g1_objective(n_steps, dt=1e-4, cycles=10, shape=(4, 8, 1), newton_tol=TUBE_N
 def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False, newton_tol=TUBE_NEWTON_TOL):
     """jacfwd (``reverse``: jax.grad, one reverse pass) of the last-cycle mean x_P w.r.t. 12
     parameters (9 material + h, L, r), against the forward run as R1 makes it (with step
-    cut-back allowed). The derivative is taken on the user's grid (``control=None``): R1
+    cut-back allowed), timed before and after the derivative (``forward_s``; the ratio
+    ``ratio_to_forward`` takes the faster). The derivative is taken on the user's grid (``control=None``): R1
     takes no cut-back, so it is the derivative of the same run (equal to the replayed one
     to round-off, measured), in one pass instead of a forward run plus a replay of its
     accepted sub-steps (12 % less on 100 steps of R1). The row carries the derivative
@@ -198,20 +227,28 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False, 
     tic = time.perf_counter()
     lowered = g.lower(theta0).compile()
     compile_s = time.perf_counter() - tic
-    tic = time.perf_counter()
-    grad = np.asarray(jax.block_until_ready(lowered(theta0)))
-    grad_s = time.perf_counter() - tic
     fc = f.lower(theta0).compile()
-    tic = time.perf_counter()
-    jax.block_until_ready(fc(theta0))
-    fwd_s = time.perf_counter() - tic
+
+    def timed(fn):
+        tic = time.perf_counter()
+        out = jax.block_until_ready(fn(theta0))
+        return time.perf_counter() - tic, out
+
+    # the forward run before and after the derivative, the faster one the ratio's base: a
+    # machine whose load changes during the case shows as two different forward times
+    fwd_before, _ = timed(fc)
+    grad_s, grad = timed(lowered)
+    grad = np.asarray(grad)
+    fwd_after, _ = timed(fc)
+    fwd_s = min(fwd_before, fwd_after)
     scale = n_full / n
     name = "G1R grad (reverse)" if reverse else "G1 jacfwd"
     return dict(case=f"{name} 12 params, tube {'x'.join(map(str, shape))}", coordinates=None, unknowns=None,
                 solver="DenseSolver", steps=n_full, steps_run=n, compile_s=compile_s, run_s=grad_s * scale,
                 projected=n < n_full, steps_per_s=n / grad_s, newton_mean=float("nan"), newton_max=0,
                 factorizations=0, peak_mb=_peak_rss_mb(), device_peak_mb=_peak_device_mb(), status=0,
-                ratio_to_forward=grad_s / fwd_s, gradient=grad.tolist())
+                ratio_to_forward=grad_s / fwd_s, forward_s=[fwd_before * scale, fwd_after * scale],
+                gradient=grad.tolist())
 
 
 S1_SHAPES = ((4, 8, 1), (6, 10, 2), (8, 12, 2), (10, 16, 3), (12, 20, 4))
@@ -417,6 +454,7 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
          torsional_mesh=(48, 8, 2), newton_tol=TUBE_NEWTON_TOL, reference=False, solver="auto") -> int:
     newton = it.NewtonOptions(tol=newton_tol)
     rows, extra = [], {}
+    cpu_before = cpu_reference()
     for c in cases:
         sys.stderr.write(f"running {c} ...\n")
         if c == "robust":
@@ -458,14 +496,20 @@ def main(cases=("B1", "R1", "R2", "G1", "S1"), max_steps=None, json_path="bench.
             sys.stderr.write(f"  D1 verdict: {rows[-1]['verdict']}\n")
         else:
             raise ValueError(f"unknown bench case {c!r}; choose from B1 R1 R2 G1 G1R S1 N1 F1 D1 robust")
+    cpu_after = cpu_reference()
     if rows:
         print(format_table(rows))
     for k, v in extra.items():
         if k != "robust":
             print(f"{k}: {v:.3g}")
+    print(f"CPU reference (s of sum(range(10**8))): {cpu_before:.2f} before, {cpu_after:.2f} after")
+    note = speed_note(cpu_before, cpu_after)
+    if note:
+        print(note)
     if json_path:
         with open(json_path, "w") as f:
-            json.dump({"rows": rows, **extra, "device": str(jax.devices()[0])}, f, indent=2, default=float)
+            json.dump({"rows": rows, **extra, "cpu_reference_s": [cpu_before, cpu_after],
+                       "device": str(jax.devices()[0])}, f, indent=2, default=float)
     return 0
 
 

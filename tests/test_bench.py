@@ -33,3 +33,13 @@ def test_command_cases_time_a_child_dejax_process(tmp_path):
     with pytest.raises(RuntimeError, match="exit 2"):
         bench.run_command(["fit", str(tmp_path / "missing.toml")], tmp_path / "cache")
     assert bench._example("vhb4910_uniaxial.toml").exists() and bench._example("block_d1.toml").exists()
+
+
+def test_a_changed_cpu_reference_is_flagged():
+    """The machine-speed yardstick printed beside every bench run: a change of more than
+    20 % during a run is reported, a steady one is not."""
+    assert bench.cpu_reference(10 ** 5) > 0
+    assert bench.speed_note(1.50, 1.70) is None  # 13 %
+    note = bench.speed_note(2.72, 1.74)  # 56 %, measured around a bench run on 2026-12-06
+    assert note is not None and "56 %" in note and "2.72 -> 1.74" in note
+    assert bench.speed_note(1.74, 2.72) is not None
