@@ -214,11 +214,11 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False, 
     """jacfwd (``reverse``: jax.grad, one reverse pass) of the last-cycle mean x_P w.r.t. 12
     parameters (9 material + h, L, r), against the forward run as R1 makes it (with step
     cut-back allowed), timed before and after the derivative (``forward_s``; the ratio
-    ``ratio_to_forward`` takes the faster). The derivative is taken on the user's grid (``control=None``): R1
-    takes no cut-back, so it is the derivative of the same run (equal to the replayed one
-    to round-off, measured), in one pass instead of a forward run plus a replay of its
-    accepted sub-steps (12 % less on 100 steps of R1). The row carries the derivative
-    (``gradient``) so that G1 and G1R can be compared."""
+    ``ratio_to_forward`` takes the faster). The derivative is taken on the user's grid
+    (``control=None``): R1 takes no cut-back, so it is the derivative of the same run (equal
+    to the replayed one to round-off, measured), in one pass instead of a forward run plus a
+    replay of its accepted sub-steps (12 % less on 100 steps of R1). The row carries the
+    derivative (``gradient``) so that G1 and G1R can be compared."""
     n_full = it.time_grid(cycles / 30.0, dt).size - 1
     n = n_full if max_steps is None else min(n_full, int(max_steps))
     mean_last_cycle, theta0 = g1_objective(n, dt, cycles, shape, newton_tol)
