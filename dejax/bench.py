@@ -435,14 +435,21 @@ def _amortized_iteration(p, solv, s0, fac0, dt, repeat) -> dict:
     step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=N1_ITERATIONS, tol=1e-300,
                                                      criterion="correction", line_search=False), solv)
     run = jax.jit(lambda s, fac: step(p.model, p.loading, s, s.t + dt, fac, False))  # the whole step, as N1's
-    iterations = int(jax.block_until_ready(run(s0, fac0))[1])  # compiles
+    linsolve.clear_factorizations()
+    n0 = linsolve.host_factorizations()
+    out = jax.block_until_ready(run(s0, fac0))  # compiles
+    # the iteration matrix factorized at every iteration (on the host for the sparse solvers:
+    # a factorization cached by its values would make later iterations cheaper)
+    iterations, factorizations = int(out[1]), int(out[2])
+    host = linsolve.host_factorizations() - n0
     best = float("inf")
     for _ in range(repeat):
         linsolve.clear_factorizations()
         tic = time.perf_counter()
         jax.block_until_ready(run(s0, fac0))
         best = min(best, time.perf_counter() - tic)
-    return dict(iterations=iterations, step_s=best, seconds_per_iteration=best / max(iterations, 1))
+    return dict(iterations=iterations, factorizations=factorizations, host_factorizations=host, step_s=best,
+                seconds_per_iteration=best / max(iterations, 1))
 
 
 def case_S1(max_steps=50, dt=1e-4):
