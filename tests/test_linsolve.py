@@ -349,3 +349,27 @@ def test_implicit_derivative_with_pardiso_equals_dense(monkeypatch):
     assert np.all(np.abs(dense_f) > 0)
     assert np.max(np.abs(sparse_f - dense_f)) <= 1e-10 * np.max(np.abs(dense_f))
     assert np.max(np.abs(sparse_r - dense_f)) <= 1e-10 * np.max(np.abs(dense_f))
+
+
+def test_host_factorizations_count_new_matrices_not_cache_hits(problem):
+    """``host_factorizations`` (the check of bench N1's amortized figure): a solve with new
+    values factorizes once, the same values again reuse it, and after
+    ``clear_factorizations`` the same values factorize again."""
+    m = problem.model
+    E = mdl.nominal_field(m, jnp.array([8e3]))
+    Ke = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3, mdl.initial_pressure(m))[1]
+    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    solver = linsolve.SparseSolver()
+    values = solver.factor(m, Ke)
+    b = jnp.ones(m.structure.n_free)
+    linsolve.clear_factorizations()
+    n0 = linsolve.host_factorizations()
+    x = solver.solve_factored(m, values, b)
+    assert linsolve.host_factorizations() - n0 == 1
+    np.testing.assert_array_equal(np.asarray(solver.solve_factored(m, values, b)), np.asarray(x))
+    assert linsolve.host_factorizations() - n0 == 1
+    solver.solve_factored(m, values * 2.0, b)
+    assert linsolve.host_factorizations() - n0 == 2
+    linsolve.clear_factorizations()
+    solver.solve_factored(m, values, b)
+    assert linsolve.host_factorizations() - n0 == 3
