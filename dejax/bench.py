@@ -105,6 +105,16 @@ def speed_note(before: float, after: float) -> str | None:
             "the machine's load changed, so these timings and their ratios mix two speeds; run again")
 
 
+def _wall(fn, *args, fresh: bool = False):
+    """(seconds, output) of one call of ``fn(*args)`` until its result is ready; ``fresh``:
+    the sparse solver's cached factorizations dropped first, so the call factorizes."""
+    if fresh:
+        linsolve.clear_factorizations()
+    tic = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return time.perf_counter() - tic, out
+
+
 def reference_path(key: str) -> Path:
     """Where the accuracy reference ``key`` is cached: <cache root>/bench/<key>.npz."""
     from .compile_cache import cache_root
@@ -228,18 +238,12 @@ def case_G1(max_steps=None, dt=1e-4, cycles=10, shape=(4, 8, 1), reverse=False, 
     lowered = g.lower(theta0).compile()
     compile_s = time.perf_counter() - tic
     fc = f.lower(theta0).compile()
-
-    def timed(fn):
-        tic = time.perf_counter()
-        out = jax.block_until_ready(fn(theta0))
-        return time.perf_counter() - tic, out
-
     # the forward run before and after the derivative, the faster one the ratio's base: a
     # machine whose load changes during the case shows as two different forward times
-    fwd_before, _ = timed(fc)
-    grad_s, grad = timed(lowered)
+    fwd_before, _ = _wall(fc, theta0)
+    grad_s, grad = _wall(lowered, theta0)
     grad = np.asarray(grad)
-    fwd_after, _ = timed(fc)
+    fwd_after, _ = _wall(fc, theta0)
     fwd_s = min(fwd_before, fwd_after)
     scale = n_full / n
     name = "G1R grad (reverse)" if reverse else "G1 jacfwd"
@@ -397,17 +401,9 @@ def case_N1(dt=TUBE_DT, solver="auto", repeat=5) -> dict:
     s0 = it.initial_state(m, p.loading, 0.0)
     fac0 = it.initial_carry(m, s0, solv).fac
     one = jax.jit(lambda s, fac: step(m, p.loading, s, s.t + dt, fac, False))
-
-    def timed(fresh):
-        if fresh:
-            linsolve.clear_factorizations()
-        tic = time.perf_counter()
-        jax.block_until_ready(one(s0, fac0))
-        return time.perf_counter() - tic
-
-    first = timed(True)
-    per_it = min(timed(True) for _ in range(repeat))
-    cached = min(timed(False) for _ in range(repeat))
+    first, _ = _wall(one, s0, fac0, fresh=True)
+    per_it = min(_wall(one, s0, fac0, fresh=True)[0] for _ in range(repeat))
+    cached = min(_wall(one, s0, fac0)[0] for _ in range(repeat))
     amortized = _amortized_iteration(p, solv, s0, fac0, dt, repeat)
     peer = _felupe_iteration()
     return dict(case="N1 one Newton iteration, R2", coordinates=int(m.structure.n_dofs),
@@ -435,19 +431,13 @@ def _amortized_iteration(p, solv, s0, fac0, dt, repeat) -> dict:
     step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=N1_ITERATIONS, tol=1e-300,
                                                      criterion="correction", line_search=False), solv)
     run = jax.jit(lambda s, fac: step(p.model, p.loading, s, s.t + dt, fac, False))  # the whole step, as N1's
-    linsolve.clear_factorizations()
     n0 = linsolve.host_factorizations()
-    out = jax.block_until_ready(run(s0, fac0))  # compiles
+    _, out = _wall(run, s0, fac0, fresh=True)  # compiles
     # the iteration matrix factorized at every iteration (on the host for the sparse solvers:
     # a factorization cached by its values would make later iterations cheaper)
     iterations, factorizations = int(out[1]), int(out[2])
     host = linsolve.host_factorizations() - n0
-    best = float("inf")
-    for _ in range(repeat):
-        linsolve.clear_factorizations()
-        tic = time.perf_counter()
-        jax.block_until_ready(run(s0, fac0))
-        best = min(best, time.perf_counter() - tic)
+    best = min(_wall(run, s0, fac0, fresh=True)[0] for _ in range(repeat))
     return dict(iterations=iterations, factorizations=factorizations, host_factorizations=host, step_s=best,
                 seconds_per_iteration=best / max(iterations, 1))
 
