@@ -22,6 +22,16 @@ Variants:
            the lanes), to a correction below TOL (default 1e-6) of the tangent; prints the
            sweeps per step and lane. Revert the patch afterwards (``git checkout
            dejax/integrate.py``).
+  stale[-cv]  only with ``git apply bench/patches/g1_stale_tangent.patch``: the cheapest
+           tangent there is: the predictor's tangent corrected once by the stale
+           factorization against the exact linearized residual (one jvp along the lanes per
+           step, no exact matrix, no check); ``stale-cv`` also moves Cv's tangent along the
+           correction (a jvp of the flow update). A lower bound of the lanes' cost, not a
+           derivative (it diverges: see docs/performance.md).
+  lanes:K  ``jax.jacfwd`` with respect to the first K of the twelve parameters only (the
+           others held): what the lanes cost one by one (``lanes:1`` = one lane with every
+           lane-independent cost of the exact derivative); its derivatives are compared with
+           the exact variant's first K.
 """
 from __future__ import annotations
 
@@ -55,9 +65,14 @@ def compiled_variant(name, f, theta):
         lanes = lambda B: jax.vmap(lambda v: jax.jvp(f, (theta,), (v,))[1])(B)  # noqa: E731
         mesh = Mesh(np.array(jax.devices()[:2]), ("lane",))
         return jax.jit(shard_map(lanes, mesh=mesh, in_specs=P("lane"), out_specs=P("lane"))).lower(basis).compile(), basis
-    if name.startswith("refine"):
-        if not hasattr(it, "_refined_tangent"):
+    if name.startswith("lanes:"):
+        k = int(name.partition(":")[2])
+        return jax.jit(jax.jacfwd(lambda x: f(theta.at[:k].set(x)))).lower(theta[:k]).compile(), theta[:k]
+    if name.startswith("refine") or name.startswith("stale"):
+        if name.startswith("refine") and not hasattr(it, "_refined_tangent"):
             raise SystemExit("variant refine needs `git apply bench/patches/g1_tangent_refine.patch`")
+        if name.startswith("stale") and "SymbolicZero" not in vars(it):
+            raise SystemExit("variant stale needs `git apply bench/patches/g1_stale_tangent.patch`")
         os.environ["DEJAX_TANGENT"] = name  # read while tracing
         jax.clear_caches()  # the inner jits' traces of the other variants
         try:
@@ -97,7 +112,7 @@ def main():
     ref = grads["exact"]
     for k in names:
         t = min(times[k])
-        diff = np.max(np.abs(grads[k] - ref)) / np.max(np.abs(ref))
+        diff = np.max(np.abs(grads[k] - ref[: grads[k].size])) / np.max(np.abs(ref[: grads[k].size]))
         print(f"{k:<14} {t:7.3f} s  {t / fwd:5.2f}x forward  derivatives vs exact {diff:.1e}", flush=True)
 
 
