@@ -576,7 +576,8 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         dmodel, dctx = tangents[0], tangents[1]
         out = newton(model, ctx, z0, p0, fac, valid)
         # named, so that a rematerialized step (reverse mode) linearizes at the kept solution
-        # instead of running its Newton iterations again
+        # instead of running its Newton iterations again; the rule returns the named values
+        # (named again outside, they would be kept twice)
         z, p = (checkpoint_name(x, STEP_SOLUTION) for x in out[:2])
         _, (dru, dg, dCv) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p), (model, ctx), (dmodel, dctx))
         sys = _system(model, scheme, ctx, z, p)
@@ -584,7 +585,7 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         # Cv's change along (dz, dp) by the flow rule's derivative that the tangent already
         # holds (Cv_new does not depend on p), rather than a second jvp of the residual
         dCv = dCv + mdl.flow_tangent(model, sys.Cv_F, mdl.expand(model, dz))
-        return out, (dz, dp, *(_zero_tangent(x) for x in out[2:6]), dCv)
+        return (z, p, *out[2:]), (dz, dp, *(_zero_tangent(x) for x in out[2:6]), dCv)
 
     return newton
 
@@ -690,8 +691,8 @@ def make_step(scheme=GeneralizedAlpha(), opts: NewtonOptions = NewtonOptions(), 
         p0 = mdl.initial_pressure(model) if state.p is None else state.p
         z, p1, it, nfac, conv, fac, Cv1 = newton(model, ctx, q_pred[s.free], p0, fac, valid)
         # named so that a rematerialized scan (reverse mode) keeps the converged step rather
-        # than repeating its Newton iterations
-        z, p1, Cv1 = (checkpoint_name(x, STEP_SOLUTION) for x in (z, p1, Cv1))
+        # than repeating its Newton iterations (z and p1 are named by Newton's jvp rule)
+        Cv1 = checkpoint_name(Cv1, STEP_SOLUTION)
         fac = jax.lax.stop_gradient(fac)  # no tangent carried for the factorization
         q1 = mdl.full_coordinates(model, z, ctx.u1)
         qdd1, v1, a1 = scheme.kinematics(state, h, q1)

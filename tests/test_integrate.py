@@ -453,7 +453,8 @@ def test_a_reverse_pass_keeps_the_converged_steps_not_their_factorizations(block
     """jax.vjp of a run keeps, per step, the converged solution and the step's status (named
     in ``integrate``), so the rematerialized step linearizes there: no step's Newton
     iterations run again in the reverse pass, and no step's iteration-matrix factorization
-    (n_free x n_free, carried from step to step for the modified Newton) is kept for them."""
+    (n_free x n_free, carried from step to step for the modified Newton) is kept for them;
+    the converged unknowns are kept once."""
     n_free = block.model.structure.n_free
     times = it.time_grid(0.05, 1e-2)
     load = block.loading(12e3, 0.1, 0.05 * L, 0.1)
@@ -467,6 +468,9 @@ def test_a_reverse_pass_keeps_the_converged_steps_not_their_factorizations(block
     per_step = [x.shape for x in kept if x.ndim >= 3 and x.shape[0] == times.size - 1]
     assert per_step  # the scan's residuals are there (the check below looks at the right thing)
     assert not [s for s in per_step if s[-2:] == (n_free, n_free)], per_step
+    # and the converged unknowns once (each named once: a second name keeps a second copy)
+    unknowns = [x.shape for x in kept if x.shape == (times.size - 1, n_free)]
+    assert len(unknowns) == 1, [x.shape for x in kept]
 
 
 def test_default_newton_quasi_static_ramp():
