@@ -577,7 +577,9 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         out = newton(model, ctx, z0, p0, fac, valid)
         # named, so that a rematerialized step (reverse mode) linearizes at the kept solution
         # instead of running its Newton iterations again; the rule returns the named values
-        # (named again outside, they would be kept twice)
+        # (named again outside, they would be kept twice). A derivative along data that no
+        # step's Newton sees (read by the outputs alone) leaves them unnamed: its reverse
+        # pass is right but runs the steps' Newton iterations again
         z, p = (checkpoint_name(x, STEP_SOLUTION) for x in out[:2])
         _, (dru, dg, dCv) = jax.jvp(lambda m, c: _residual(m, scheme, c, z, p), (model, ctx), (dmodel, dctx))
         sys = _system(model, scheme, ctx, z, p)
