@@ -8,11 +8,11 @@ Measured 2026-12-07: at 1e-2 (R1's and G1's tolerance) 204 iterations and 1 fact
 in 100 steps (2.04 per step), x_P(end) 1.897e-5 m; at 0.3, 105 iterations, 6
 factorizations, x_P(end) 3.44e-5 m (a different trajectory); at 0.9 the run fails without
 cut-back (status 1) and needs 16 cut-backs with it. The forward run (no cut-back, jitted,
-5 alternated calls, the script's last line) takes 0.709 / 0.572 s at 1e-2 and 0.624 / 0.552 s at 0.3 (1.05 iterations per step;
-two runs): one iteration less per step saves 0.02-0.085 s per 100 steps, at most ~1 % of
-G1's 6.89 s there.
-A perfect Newton matrix can take no more than that off G1. An earlier bound that ran G1
-at tolerance 0.9 (5.11 s) timed a failed run, whose steps after the failure are skipped.
+min of 5 alternated calls: the script's last line) takes 0.709 / 0.572 s at 1e-2 and
+0.624 / 0.552 s at 0.3 (1.05 iterations per step; two runs): one iteration less per step
+saves 0.02-0.085 s per 100 steps, at most ~1 % of G1's 6.89 s there. A perfect Newton
+matrix can take no more than that off G1. An earlier bound that ran G1 at tolerance 0.9
+(5.11 s) timed a failed run, whose steps after the failure are skipped.
 """
 import time
 
