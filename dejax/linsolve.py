@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import model as mdl
+from . import ordering
 
 
 class LinearSolver(eqx.Module):
@@ -263,6 +264,8 @@ class _PardisoPattern:
         self.iparm[34] = 1  # zero-based ia, ja
         self.free_slots = list(range(1, self.MAX_FACTORS + 1))
         self.analysed = False
+        self.perm = None  # the elimination order handed to MKL (iparm[4] = 1), None: MKL's METIS
+        self.factor_mflop = {}  # MKL's operation count of the factorization (MFLOP) by ordering
 
     def call(self, phase: int, slot: int, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
         """One call of MKL's ``pardiso`` on matrix ``slot`` (values ``a`` in the upper
@@ -273,8 +276,8 @@ class _PardisoPattern:
         ref = lambda v: ctypes.byref(ctypes.c_int32(v))  # noqa: E731
         self.lib.pardiso(self.pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), ref(self.MAX_FACTORS), ref(slot),
                          ref(2), ref(phase), ref(self.n), a.ctypes.data_as(f64),
-                         self.upper.indptr.ctypes.data_as(i32), self.upper.indices.ctypes.data_as(i32), None,
-                         ref(b.shape[1]), self.iparm.ctypes.data_as(i32), ref(0), b.ctypes.data_as(f64),
+                         self.upper.indptr.ctypes.data_as(i32), self.upper.indices.ctypes.data_as(i32),
+                         None if self.perm is None else self.perm.ctypes.data_as(i32), ref(b.shape[1]), self.iparm.ctypes.data_as(i32), ref(0), b.ctypes.data_as(f64),
                          x.ctypes.data_as(f64), ctypes.byref(err))
         return x, err.value
 
@@ -285,8 +288,7 @@ class _PardisoPattern:
         a = np.ascontiguousarray(upper_values, dtype=np.float64)
         z = np.zeros((self.n, 1), order="F")
         if not self.analysed:
-            _check_mkl(self.call(11, 1, a, z)[1], 11)
-            self.analysed = True
+            self._analyse(a, z)
         if not self.free_slots:
             raise RuntimeError("MKL Pardiso: every factorization slot of this pattern is in use")
         slot = self.free_slots.pop()  # the most recently freed: its memory is warm
@@ -296,6 +298,26 @@ class _PardisoPattern:
             return None
         _check_mkl(err, 22)
         return _PardisoCholesky(self, slot, a)
+
+    def _analyse(self, a: np.ndarray, z: np.ndarray):
+        """The symbolic analysis (phase 11) with the ordering MKL counts fewer operations for:
+        its own METIS nested dissection, or ``ordering.nested_dissection``'s on the
+        pattern's supervariables (R2's matrix: 12.0 against 15.1 GFLOP)."""
+        full = self.upper.pattern
+        candidates = {"metis": None, "nested dissection": ordering.nested_dissection(full.n, full.rows, full.indptr)}
+        for name, perm in candidates.items():
+            self.perm = perm
+            self.iparm[4] = 0 if perm is None else 1
+            self.iparm[18] = -1  # report the factorization's operation count
+            _check_mkl(self.call(11, 1, a, z)[1], 11)
+            self.factor_mflop[name] = int(self.iparm[18])
+        best = min(candidates, key=lambda k: self.factor_mflop[k])
+        if best != name:  # analysed last with the other one
+            self.perm = candidates[best]
+            self.iparm[4] = 0 if self.perm is None else 1
+            _check_mkl(self.call(11, 1, a, z)[1], 11)
+        self.ordering = best
+        self.analysed = True
 
     def release(self, slot: int):
         """Mark ``slot`` free; MKL keeps its memory for the next factorization (see above)."""

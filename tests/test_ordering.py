@@ -1,0 +1,98 @@
+"""The fill-reducing ordering (``dejax.ordering``): supervariables, a permutation, less fill
+than independent orderings where nested dissection should win, and MKL Pardiso handed the
+cheaper of its own ordering and this one."""
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+from scipy.sparse.linalg import norm as sparse_norm, spsolve
+
+from dejax import linsolve, ordering, scenarios
+from dejax import model as mdl
+
+
+def _grid_pattern(dims, dofs):
+    """CSC pattern of a structured grid of nodes (dims (3,)) coupled to their 26 neighbours,
+    ``dofs`` unknowns per node (node-major)."""
+    X = np.stack(np.meshgrid(*[np.arange(d) for d in dims], indexing="ij"), -1).reshape(-1, 3)
+    near = np.max(np.abs(X[:, None, :] - X[None, :, :]), axis=-1) <= 1
+    A = sp.kron(sp.csr_matrix(near.astype(float)), np.ones((dofs, dofs))).tocsc()
+    A.sort_indices()
+    return A
+
+
+def _cholesky_fill(A, order):
+    """Entries of the dense Cholesky factor of an SPD matrix with A's pattern (its graph
+    Laplacian plus the identity) in the elimination order ``order``: numpy, independent of
+    the ordering code."""
+    M = -A.toarray()
+    np.fill_diagonal(M, 0.0)
+    np.fill_diagonal(M, -M.sum(axis=1) + 1.0)
+    L = np.linalg.cholesky(M[np.ix_(order, order)])
+    return int(np.sum(np.abs(L) > 1e-13 * np.abs(L).max()))
+
+
+@pytest.mark.parametrize("shape", [(2, 4, 1), (2, 4, 2)])
+def test_supervariables_of_the_tube_are_its_nodes(shape):
+    """A node's free coordinates share one row pattern (a supervariable), and nodes share
+    one only where they lie in the same elements (one element through the wall: the inner
+    and outer node of each column): checked against the connectivity."""
+    m = scenarios.rolled("IV", 30.0, 50e3, shape=shape).model
+    a = mdl.assembly(m.structure)
+    group, first = ordering.supervariables(a.n, a.rows, a.indptr)
+    node = np.asarray(m.structure.free) // 12
+    elements_of = {int(k): frozenset(np.flatnonzero((m.structure.conn == k).any(axis=1))) for k in np.unique(node)}
+    group_of_node = {}
+    for k, g in zip(node, group):
+        assert group_of_node.setdefault(int(k), int(g)) == g  # one group per node
+    for g in range(first.size):
+        members = {int(k) for k in node[group == g]}
+        assert len({elements_of[k] for k in members}) == 1
+    if shape[2] == 2:  # every node column has distinct element sets: one node per group
+        assert first.size == len(elements_of)
+
+
+@pytest.mark.parametrize("dims, dofs", [((30, 30, 1), 2), ((8, 8, 8), 3)])
+def test_nested_dissection_fills_less_than_natural_and_rcm_orderings(dims, dofs):
+    """On square and cubic grids (where nested dissection is asymptotically better than any
+    banded ordering) the order is a permutation keeping each node's unknowns together and
+    its Cholesky factor has fewer entries than with the natural (lexicographic) ordering
+    and with scipy's reverse Cuthill-McKee (measured: 87,012 against 109,956 and 128,990 on
+    the 30 x 30 grid; 263,532 against 297,408 and 370,200 on the 8^3 cube)."""
+    A = _grid_pattern(dims, dofs)
+    n = A.shape[0]
+    order = ordering.nested_dissection(n, A.indices, A.indptr)
+    assert order.shape == (n,) and np.array_equal(np.sort(order), np.arange(n))
+    blocks = order.reshape(-1, dofs) // dofs
+    assert np.all(blocks == blocks[:, :1])  # a node's unknowns stay side by side
+    nd = _cholesky_fill(A, order)
+    assert nd < _cholesky_fill(A, np.arange(n))
+    assert nd < _cholesky_fill(A, reverse_cuthill_mckee(A.tocsr(), symmetric_mode=True))
+
+
+def test_pardiso_takes_the_ordering_with_fewer_operations():
+    """MKL Pardiso's analysis counts the factorization's operations for its METIS ordering
+    and for dejax's, and keeps the cheaper; on the tube 8x12x2 that is dejax's (MKL's counts:
+    586 against 645 MFLOP), and the factorization with it solves to round-off."""
+    pytest.importorskip("pypardiso")
+    m = scenarios.rolled("IV", 30.0, 50e3, shape=(8, 12, 2)).model
+    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
+    _, Ke, _ = eqx.filter_jit(mdl.element_tangents)(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
+    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    pattern = mdl.assembly(m.structure)
+    values = np.asarray(mdl.assemble_values(m, Ke))
+    f = linsolve._factorize(pattern, values[pattern.upper], "pardiso")
+    handle = linsolve._PARDISO[pattern]
+    counts = handle.factor_mflop
+    assert set(counts) == {"metis", "nested dissection"}
+    assert handle.ordering == min(counts, key=counts.get) == "nested dissection"
+    assert counts["nested dissection"] < counts["metis"]
+    b = np.random.default_rng(1).standard_normal(pattern.n)
+    A = linsolve._csc(pattern, values)
+    x = f(b)
+    # backward error (Frobenius norm of A), as small as scipy's LU's
+    backward = lambda y: np.linalg.norm(A @ y - b) / (sparse_norm(A) * np.linalg.norm(y))  # noqa: E731
+    assert backward(x) <= 10.0 * max(backward(spsolve(A, b)), 1e-17)
+    f.free()
