@@ -244,8 +244,8 @@ class _UpperPattern:
 
 class _PardisoPattern:
     """MKL Pardiso's handle for one sparsity pattern: the upper triangle (``_UpperPattern``),
-    its symbolic analysis (nested-dissection ordering, phase 11: 0.08 s on the paper's tube,
-    done once) and up to ``MAX_FACTORS`` numerical Cholesky factorizations of matrices with
+    its symbolic analysis (a nested-dissection ordering, MKL's or dejax's, ``_analyse``;
+    phase 11: 0.06-0.11 s on the paper's tube, done once) and up to ``MAX_FACTORS`` numerical Cholesky factorizations of matrices with
     that pattern (matrix type 2, real symmetric positive definite), each in its own slot.
 
     A freed slot keeps MKL's memory for the next factorization, which overwrites it: a
@@ -305,17 +305,22 @@ class _PardisoPattern:
         pattern's supervariables (R2's matrix: 12.0 against 15.1 GFLOP)."""
         full = self.upper.pattern
         candidates = {"metis": None, "nested dissection": ordering.nested_dissection(full.n, full.rows, full.indptr)}
-        for name, perm in candidates.items():
-            self.perm = perm
-            self.iparm[4] = 0 if perm is None else 1
+
+        def analyse(name):
+            if self.factor_mflop:  # the previous analysis released first: a fresh handle
+                self.call(-1, 1, np.zeros(0), z)
+                self.pt[:] = 0
+            self.perm = candidates[name]
+            self.iparm[4] = 0 if self.perm is None else 1
             self.iparm[18] = -1  # report the factorization's operation count
             _check_mkl(self.call(11, 1, a, z)[1], 11)
             self.factor_mflop[name] = int(self.iparm[18])
+
+        for name in candidates:
+            analyse(name)
         best = min(candidates, key=lambda k: self.factor_mflop[k])
         if best != name:  # analysed last with the other one
-            self.perm = candidates[best]
-            self.iparm[4] = 0 if self.perm is None else 1
-            _check_mkl(self.call(11, 1, a, z)[1], 11)
+            analyse(best)
         self.ordering = best
         self.analysed = True
 

@@ -96,3 +96,28 @@ def test_pardiso_takes_the_ordering_with_fewer_operations():
     backward = lambda y: np.linalg.norm(A @ y - b) / (sparse_norm(A) * np.linalg.norm(y))  # noqa: E731
     assert backward(x) <= 10.0 * max(backward(spsolve(A, b)), 1e-17)
     f.free()
+
+
+def test_pardiso_keeps_metis_where_dejax_ordering_is_worse(monkeypatch):
+    """With a random permutation in place of dejax's ordering MKL counts more operations for
+    it, so the analysis is made again with METIS (MKL's memory of the first released), and
+    the factorization solves as well as scipy's LU."""
+    pytest.importorskip("pypardiso")
+    monkeypatch.setattr(ordering, "nested_dissection",
+                        lambda n, rows, indptr, leaf=4: np.random.default_rng(0).permutation(n).astype(np.int32))
+    m = scenarios.rolled("IV", 30.0, 50e3, shape=(3, 8, 1)).model  # a pattern no other test analyses
+    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
+    _, Ke, _ = eqx.filter_jit(mdl.element_tangents)(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
+    Ke = Ke + 1e3 * mdl.mass_elements(m)
+    pattern = mdl.assembly(m.structure)
+    values = np.asarray(mdl.assemble_values(m, Ke))
+    f = linsolve._factorize(pattern, values[pattern.upper], "pardiso")
+    handle = linsolve._PARDISO[pattern]
+    assert handle.ordering == "metis" and handle.perm is None
+    assert handle.factor_mflop["metis"] < handle.factor_mflop["nested dissection"]
+    A = linsolve._csc(pattern, values)
+    b = np.random.default_rng(2).standard_normal(pattern.n)
+    x = f(b)
+    backward = lambda y: np.linalg.norm(A @ y - b) / (sparse_norm(A) * np.linalg.norm(y))  # noqa: E731
+    assert backward(x) <= 10.0 * max(backward(spsolve(A, b)), 1e-17)
+    f.free()
