@@ -397,14 +397,70 @@ def _factorize(pattern: mdl.Assembly, values: np.ndarray, backend: str):
             return f
         # not positive definite (past an instability): LU of the whole symmetric matrix
         return _PardisoFactor(pypardiso.PyPardisoSolver(), _csc(pattern, values[handle.upper.full]).tocsr())
-    A = _csc(pattern, values)
+    return _superlu(pattern, values)
+
+
+class _SymmetricOrder:
+    """The symmetric permutation of a CSC pattern by ``ordering.nested_dissection``:
+    ``order`` (n,), and the permuted matrix's pattern (``indices``, ``indptr``) with the
+    position in the original values of each of its entries (``source``)."""
+
+    def __init__(self, pattern: mdl.Assembly):
+        import scipy.sparse as sp
+
+        self.order = ordering.nested_dissection(pattern.n, pattern.rows, pattern.indptr)
+        number = sp.csc_matrix((np.arange(1, pattern.nnz + 1, dtype=np.int64), pattern.rows, pattern.indptr),
+                               shape=(pattern.n, pattern.n))
+        P = number[self.order][:, self.order].tocsc()
+        P.sort_indices()
+        self.indices, self.indptr, self.source = P.indices, P.indptr, P.data - 1
+
+
+_SUPERLU_ORDER: "weakref.WeakKeyDictionary[mdl.Assembly, _SymmetricOrder]" = weakref.WeakKeyDictionary()
+SUPERLU_BACKWARD_BOUND = 1e-12
+"""A SuperLU factorization without pivoting whose solve of a test vector has a larger
+normwise backward error ||b - A x|| / (||A||_F ||x|| + ||b||) is made again with COLAMD
+and partial pivoting."""
+
+
+def _superlu(pattern: mdl.Assembly, values: np.ndarray):
+    """SuperLU's LU of the CSC matrix ``values``: a solve function (b (n,) or (n, k)).
+
+    In dejax's nested-dissection order with diagonal pivots (``SymmetricMode``, no pivoting
+    threshold), checked by a test solve, else (an unstable factorization) COLAMD with
+    partial pivoting. R2's matrix (`python bench/superlu_ordering.py`, 2026-12-08): 1.9 s
+    and 21.8 million entries in L + U against COLAMD's 8.6 s and 47.2 million, backward
+    error 2.8e-22 against 6.6e-22. (Any pivoting threshold above zero, 1e-3 to 0.1, pivots
+    off the diagonal, the positions' and gradients' scales being apart, and fills 58
+    million; SymmetricMode with minimum degree on A^T + A measured 164 s on 2026-12-01 with
+    the default threshold.)"""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import norm as sparse_norm
     from scipy.sparse.linalg import splu
 
-    # COLAMD: measured on the ANCF matrices (2026-12-01, 2 cores) 4x to 130x faster than the
-    # symmetric-mode minimum degree on A^T + A, with a third to a twelfth of the fill
-    # (tube 12x20x4, 14,100 unknowns: 13.9 s vs 164 s; torsional 48x8x2: 1.3 s vs 176 s)
-    lu = splu(A, permc_spec="COLAMD")
-    return lu.solve
+    A = _csc(pattern, values)
+    perm = _SUPERLU_ORDER.get(pattern)
+    if perm is None:
+        perm = _SUPERLU_ORDER[pattern] = _SymmetricOrder(pattern)
+    Ap = sp.csc_matrix((values[perm.source], perm.indices, perm.indptr), shape=A.shape)
+    try:
+        lu = splu(Ap, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    except RuntimeError:  # an exactly zero pivot
+        lu = None
+    if lu is not None:
+        order = perm.order
+
+        def solve(b):
+            x = np.empty_like(b, dtype=np.float64)
+            x[order] = lu.solve(np.ascontiguousarray(b[order], dtype=np.float64))
+            return x
+
+        b = np.random.default_rng(0).standard_normal(pattern.n)
+        x = solve(b)
+        backward = np.linalg.norm(b - A @ x) / (sparse_norm(A) * np.linalg.norm(x) + np.linalg.norm(b))
+        if np.isfinite(backward) and backward <= SUPERLU_BACKWARD_BOUND:
+            return solve
+    return splu(A, permc_spec="COLAMD").solve
 
 
 _PARDISO: "weakref.WeakKeyDictionary[mdl.Assembly, _PardisoPattern]" = weakref.WeakKeyDictionary()

@@ -373,3 +373,43 @@ def test_host_factorizations_count_new_matrices_not_cache_hits(problem):
     linsolve.clear_factorizations()
     solver.solve_factored(m, values, b)
     assert linsolve.host_factorizations() - n0 == 3
+
+
+def test_superlu_in_nested_dissection_order_and_its_fallback():
+    """SuperLU factorizes in dejax's nested-dissection order without pivoting (half the fill
+    of COLAMD on the tube 8x12x2) and solves to round-off (backward error as COLAMD's with
+    partial pivoting, scipy's default, the reference); where that order is unstable (a
+    tiny pivot) it falls back to COLAMD and still solves."""
+    from scipy.sparse.linalg import norm as sparse_norm
+    from scipy.sparse.linalg import splu
+
+    m, Ke = _tube_system(shape=(8, 12, 2))
+    pattern, values = mdl.assembly(m.structure), np.asarray(mdl.assemble_values(m, Ke))
+    b = np.random.default_rng(3).standard_normal((pattern.n, 2))
+
+    def backward(A, x):
+        return np.linalg.norm(b - A @ x) / (sparse_norm(A) * np.linalg.norm(x))
+
+    A = linsolve._csc(pattern, values)
+    colamd = splu(A, permc_spec="COLAMD")
+    x = linsolve._factorize(pattern, values, "superlu")(b)
+    assert x.shape == b.shape and backward(A, x) <= 10.0 * backward(A, colamd.solve(b))
+    order = linsolve._SUPERLU_ORDER[pattern]
+    Ap = linsolve._csc(pattern, values)[order.order][:, order.order].tocsc()
+    nd = splu(Ap, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    assert nd.L.nnz + nd.U.nnz < 0.75 * (colamd.L.nnz + colamd.U.nnz)
+
+    # the first unknown's diagonal entry made tiny: without pivoting the factorization is
+    # unstable (its test solve fails the bound), so SuperLU is run again with COLAMD and
+    # partial pivoting, which solves it
+    tiny = values.copy()
+    first = order.order[0]
+    tiny[np.flatnonzero((pattern.rows == first) & (pattern.cols == first))] *= 1e-30
+    At = linsolve._csc(pattern, tiny)
+    unstable = splu(At[order.order][:, order.order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                    options=dict(SymmetricMode=True))
+    y = np.empty_like(b)
+    y[order.order] = unstable.solve(b[order.order])
+    assert not backward(At, y) <= linsolve.SUPERLU_BACKWARD_BOUND
+    x = linsolve._factorize(pattern, tiny, "superlu")(b)
+    assert backward(At, x) <= 10.0 * backward(At, splu(At, permc_spec="COLAMD").solve(b))
