@@ -963,7 +963,6 @@ jax.tree_util.register_pytree_node(
 )
 
 
-
 def _explicit_mesh_context():
     """The current abstract mesh, set explicitly for the tracing inside (no mesh: the empty
     one). JAX keys its trace caches on the mesh context, and the contexts its own

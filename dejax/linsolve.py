@@ -245,8 +245,9 @@ class _UpperPattern:
 class _PardisoPattern:
     """MKL Pardiso's handle for one sparsity pattern: the upper triangle (``_UpperPattern``),
     its symbolic analysis (a nested-dissection ordering, MKL's or dejax's, ``_analyse``;
-    phase 11: 0.06-0.11 s on the paper's tube, done once) and up to ``MAX_FACTORS`` numerical Cholesky factorizations of matrices with
-    that pattern (matrix type 2, real symmetric positive definite), each in its own slot.
+    phase 11: 0.06-0.11 s on the paper's tube, done once) and up to ``MAX_FACTORS``
+    numerical Cholesky factorizations of matrices with that pattern (matrix type 2, real
+    symmetric positive definite), each in its own slot.
 
     A freed slot keeps MKL's memory for the next factorization, which overwrites it: a
     factorization into a slot used before skips the allocation and first touch of its
@@ -265,6 +266,7 @@ class _PardisoPattern:
         self.free_slots = list(range(1, self.MAX_FACTORS + 1))
         self.analysed = False
         self.perm = None  # the elimination order handed to MKL (iparm[4] = 1), None: MKL's METIS
+        self.ordering = None  # the ordering's name, once analysed
         self.factor_mflop = {}  # MKL's operation count of the factorization (MFLOP) by ordering
 
     def call(self, phase: int, slot: int, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
@@ -277,8 +279,9 @@ class _PardisoPattern:
         self.lib.pardiso(self.pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)), ref(self.MAX_FACTORS), ref(slot),
                          ref(2), ref(phase), ref(self.n), a.ctypes.data_as(f64),
                          self.upper.indptr.ctypes.data_as(i32), self.upper.indices.ctypes.data_as(i32),
-                         None if self.perm is None else self.perm.ctypes.data_as(i32), ref(b.shape[1]), self.iparm.ctypes.data_as(i32), ref(0), b.ctypes.data_as(f64),
-                         x.ctypes.data_as(f64), ctypes.byref(err))
+                         None if self.perm is None else self.perm.ctypes.data_as(i32), ref(b.shape[1]),
+                         self.iparm.ctypes.data_as(i32), ref(0), b.ctypes.data_as(f64), x.ctypes.data_as(f64),
+                         ctypes.byref(err))
         return x, err.value
 
     def cholesky(self, upper_values: np.ndarray) -> "_PardisoCholesky | None":
@@ -428,7 +431,7 @@ def _superlu(pattern: mdl.Assembly, values: np.ndarray):
 
     In dejax's nested-dissection order with diagonal pivots (``SymmetricMode``, no pivoting
     threshold), checked by a test solve, else (an unstable factorization) COLAMD with
-    partial pivoting. R2's matrix (`python bench/superlu_ordering.py`, 2026-12-08): 1.9 s
+    partial pivoting. R2's matrix (`cd bench && python superlu_ordering.py`, 2026-12-08): 1.9 s
     and 21.8 million entries in L + U against COLAMD's 8.6 s and 47.2 million, backward
     error 2.8e-22 against 6.6e-22. (Any pivoting threshold above zero, 1e-3 to 0.1, pivots
     off the diagonal, the positions' and gradients' scales being apart, and fills 58
@@ -445,7 +448,7 @@ def _superlu(pattern: mdl.Assembly, values: np.ndarray):
     Ap = sp.csc_matrix((values[perm.source], perm.indices, perm.indptr), shape=A.shape)
     try:
         lu = splu(Ap, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    except RuntimeError:  # an exactly zero pivot
+    except RuntimeError:  # singular in this order (SuperLU pivots off a zero diagonal, not off a tiny one)
         lu = None
     if lu is not None:
         order = perm.order
