@@ -10,10 +10,10 @@ smallest vertex separator for the balance it leaves; the two sides are ordered f
 separator last. On a structured mesh the Fiedler vector varies along the mesh's longest
 direction, so the separators are its node planes (on a tube a ring, then axial lines).
 
-R2's iteration matrix (`cd bench && python pardiso_ordering.py`, 2026-12-08): 12.41 GFLOP
-and 11.5 million factor entries against MKL's METIS ordering's 15.14 GFLOP and 12.9
-million; ordered in 0.3-0.4 s, once per sparsity pattern. ``linsolve`` hands MKL Pardiso
-whichever of the two orderings MKL counts fewer operations for.
+R2's iteration matrix (`cd bench && python pardiso_ordering.py`, 2026-12-08): 12.04 GFLOP
+and 11.3 million factor entries against MKL's METIS ordering's 15.14 GFLOP and 12.9
+million; ordered in 0.4-0.5 s, once per sparsity pattern. ``linsolve`` hands MKL Pardiso
+whichever of the two orderings MKL counts fewer operations for, and SuperLU this one.
 """
 from __future__ import annotations
 
