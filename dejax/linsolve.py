@@ -306,8 +306,7 @@ class _PardisoPattern:
         """The symbolic analysis (phase 11) with the ordering MKL counts fewer operations for:
         its own METIS nested dissection, or ``ordering.nested_dissection``'s on the
         pattern's supervariables (R2's matrix: 12.0 against 15.1 GFLOP)."""
-        full = self.upper.pattern
-        candidates = {"metis": None, "nested dissection": ordering.nested_dissection(full.n, full.rows, full.indptr)}
+        candidates = {"metis": None, "nested dissection": _elimination_order(self.upper.pattern)}
 
         def analyse(name):
             if self.factor_mflop:  # the previous analysis released first: a fresh handle
@@ -403,15 +402,27 @@ def _factorize(pattern: mdl.Assembly, values: np.ndarray, backend: str):
     return _superlu(pattern, values)
 
 
+_ORDER: "weakref.WeakKeyDictionary[mdl.Assembly, np.ndarray]" = weakref.WeakKeyDictionary()
+
+
+def _elimination_order(pattern: mdl.Assembly) -> np.ndarray:
+    """``ordering.nested_dissection`` of the pattern, computed once per pattern (Pardiso's
+    analysis and SuperLU share it)."""
+    order = _ORDER.get(pattern)
+    if order is None:
+        order = _ORDER[pattern] = ordering.nested_dissection(pattern.n, pattern.rows, pattern.indptr)
+    return order
+
+
 class _SymmetricOrder:
-    """The symmetric permutation of a CSC pattern by ``ordering.nested_dissection``:
-    ``order`` (n,), and the permuted matrix's pattern (``indices``, ``indptr``) with the
-    position in the original values of each of its entries (``source``)."""
+    """The symmetric permutation of a CSC pattern by ``_elimination_order``: ``order`` (n,),
+    and the permuted matrix's pattern (``indices``, ``indptr``) with the position in the
+    original values of each of its entries (``source``)."""
 
     def __init__(self, pattern: mdl.Assembly):
         import scipy.sparse as sp
 
-        self.order = ordering.nested_dissection(pattern.n, pattern.rows, pattern.indptr)
+        self.order = _elimination_order(pattern)
         number = sp.csc_matrix((np.arange(1, pattern.nnz + 1, dtype=np.int64), pattern.rows, pattern.indptr),
                                shape=(pattern.n, pattern.n))
         P = number[self.order][:, self.order].tocsc()
