@@ -1,10 +1,12 @@
 """Helpers shared by several test modules (imported as ``helpers``, like ``svk``)."""
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from dejax import integrate as it
 from dejax import model as mdl
+from dejax import scenarios
 from fitting import effects as fx
 from fitting import forward as fw
 from fitting.schema import DataError
@@ -73,3 +75,15 @@ def analytic_traces(truth, seed=0):
     the effects ``truth`` plus white noise ``ANALYTIC_SIGMA``."""
     return fw.synthetic_traces(AnalyticForward(), ANALYTIC_CONDITIONS, truth, ANALYTIC_SIGMA, seed=seed, n_cycles=3,
                                samples_per_cycle=40)
+
+
+_element_tangents = eqx.filter_jit(mdl.element_tangents)  # one compiled program per mesh
+
+
+def tube_system(shape=(4, 4, 1)):
+    """(model, element iteration matrices) of a small rolled tube (Model IV) at rest: tangent
+    plus a mass term, symmetric positive definite."""
+    m = scenarios.rolled("IV", 30.0, 50e3, shape=shape).model
+    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
+    _, Ke, _ = _element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
+    return m, Ke + 1e3 * mdl.mass_elements(m)

@@ -8,6 +8,7 @@ import pytest
 from dejax import integrate as it
 from dejax import linsolve, scenarios
 from dejax import model as mdl
+from helpers import tube_system  # noqa: E402  (tests/helpers.py)
 
 # one compiled program, not hundreds of eagerly dispatched operations (20-30 s each call)
 element_tangents = eqx.filter_jit(mdl.element_tangents)
@@ -210,15 +211,6 @@ def test_every_solver_offers_the_linear_solver_interface():
     assert linsolve.SparseSolver("pardiso") != linsolve.SparseSolver()
 
 
-def _tube_system(shape=(4, 4, 1)):
-    """(model, element iteration matrices) of a small rolled tube: tangent plus a mass term,
-    symmetric positive definite."""
-    m = scenarios.rolled("IV", 30.0, 50e3, shape=shape).model
-    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
-    _, Ke, _ = element_tangents(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
-    return m, Ke + 1e3 * mdl.mass_elements(m)
-
-
 def test_pardiso_cholesky_of_a_symmetric_positive_definite_matrix():
     """MKL Pardiso factorizes the symmetric positive definite iteration matrix by Cholesky
     of its upper triangle (``model.assemble_upper``, the entries of the whole CSC matrix
@@ -227,7 +219,7 @@ def test_pardiso_cholesky_of_a_symmetric_positive_definite_matrix():
     scipy's LU on the whole matrix; a matrix that is not positive definite falls back to LU
     and still solves; slots are released, so more factorizations than slots never fail."""
     pytest.importorskip("pypardiso")
-    m, Ke = _tube_system()
+    m, Ke = tube_system()
     values, pattern = np.asarray(mdl.assemble_values(m, Ke)), mdl.assembly(m.structure)
     upper = np.asarray(mdl.assemble_upper(m, Ke))
     np.testing.assert_array_equal(upper, values[pattern.rows >= pattern.cols])
@@ -273,7 +265,7 @@ def test_pardiso_solver_through_the_callback_equals_dense():
     tube's iteration matrix as the dense solver does, and a repeated solve reuses the
     factorization."""
     pytest.importorskip("pypardiso")
-    m, Ke = _tube_system()
+    m, Ke = tube_system()
     K = np.asarray(mdl.assemble_dense(m, Ke))
     b = jnp.asarray(np.random.default_rng(1).standard_normal(m.structure.n_free))
     solver = linsolve.SparseSolver("pardiso")
@@ -383,7 +375,7 @@ def test_superlu_in_nested_dissection_order_and_its_fallback():
     from scipy.sparse.linalg import norm as sparse_norm
     from scipy.sparse.linalg import splu
 
-    m, Ke = _tube_system(shape=(8, 12, 2))
+    m, Ke = tube_system(shape=(8, 12, 2))
     pattern, values = mdl.assembly(m.structure), np.asarray(mdl.assemble_values(m, Ke))
     b = np.random.default_rng(3).standard_normal((pattern.n, 2))
 

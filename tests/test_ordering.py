@@ -1,8 +1,6 @@
 """The fill-reducing ordering (``dejax.ordering``): supervariables, a permutation, less fill
 than independent orderings where nested dissection should win, and MKL Pardiso handed the
 cheaper of its own ordering and this one."""
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -11,6 +9,7 @@ from scipy.sparse.linalg import norm as sparse_norm, spsolve
 
 from dejax import linsolve, ordering, scenarios
 from dejax import model as mdl
+from helpers import tube_system  # noqa: E402  (tests/helpers.py)
 
 
 def _grid_pattern(dims, dofs):
@@ -32,6 +31,24 @@ def _cholesky_fill(A, order):
     np.fill_diagonal(M, -M.sum(axis=1) + 1.0)
     L = np.linalg.cholesky(M[np.ix_(order, order)])
     return int(np.sum(np.abs(L) > 1e-13 * np.abs(L).max()))
+
+
+def _pardiso_of_tube(shape):
+    """(factorization, its pattern's Pardiso handle, check) for the iteration matrix of the
+    tube ``shape`` (``helpers.tube_system``) factorized by MKL Pardiso; check(f) is whether
+    f's solve of a random right-hand side has a backward error (Frobenius norm of A) at
+    most 10x that of scipy's LU."""
+    m, Ke = tube_system(shape)
+    pattern = mdl.assembly(m.structure)
+    values = np.asarray(mdl.assemble_values(m, Ke))
+    f = linsolve._factorize(pattern, values[pattern.upper], "pardiso")
+    A = linsolve._csc(pattern, values)
+    b = np.random.default_rng(1).standard_normal(pattern.n)
+
+    def backward(y):
+        return np.linalg.norm(A @ y - b) / (sparse_norm(A) * np.linalg.norm(y))
+
+    return f, linsolve._PARDISO[pattern], lambda g: backward(g(b)) <= 10.0 * max(backward(spsolve(A, b)), 1e-17)
 
 
 @pytest.mark.parametrize("shape", [(2, 4, 1), (2, 4, 2)])
@@ -81,24 +98,12 @@ def test_pardiso_takes_the_ordering_with_fewer_operations():
     and for dejax's, and keeps the cheaper; on the tube 8x12x2 that is dejax's (MKL's counts:
     586 against 645 MFLOP), and the factorization with it solves to round-off."""
     pytest.importorskip("pypardiso")
-    m = scenarios.rolled("IV", 30.0, 50e3, shape=(8, 12, 2)).model
-    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
-    _, Ke, _ = eqx.filter_jit(mdl.element_tangents)(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
-    Ke = Ke + 1e3 * mdl.mass_elements(m)
-    pattern = mdl.assembly(m.structure)
-    values = np.asarray(mdl.assemble_values(m, Ke))
-    f = linsolve._factorize(pattern, values[pattern.upper], "pardiso")
-    handle = linsolve._PARDISO[pattern]
+    f, handle, solves_as_scipy = _pardiso_of_tube((8, 12, 2))
     counts = handle.factor_mflop
     assert set(counts) == {"metis", "nested dissection"}
     assert handle.ordering == min(counts, key=counts.get) == "nested dissection"
     assert counts["nested dissection"] < counts["metis"]
-    b = np.random.default_rng(1).standard_normal(pattern.n)
-    A = linsolve._csc(pattern, values)
-    x = f(b)
-    # backward error (Frobenius norm of A), as small as scipy's LU's
-    backward = lambda y: np.linalg.norm(A @ y - b) / (sparse_norm(A) * np.linalg.norm(y))  # noqa: E731
-    assert backward(x) <= 10.0 * max(backward(spsolve(A, b)), 1e-17)
+    assert solves_as_scipy(f)
     f.free()
 
 
@@ -109,19 +114,8 @@ def test_pardiso_keeps_metis_where_dejax_ordering_is_worse(monkeypatch):
     pytest.importorskip("pypardiso")
     monkeypatch.setattr(ordering, "nested_dissection",
                         lambda n, rows, indptr, leaf=4: np.random.default_rng(0).permutation(n).astype(np.int32))
-    m = scenarios.rolled("IV", 30.0, 50e3, shape=(3, 8, 1)).model  # a pattern no other test analyses
-    E = mdl.nominal_field(m, jnp.zeros(m.field_dirs.shape[0]))
-    _, Ke, _ = eqx.filter_jit(mdl.element_tangents)(m, m.q0, E, mdl.initial_viscous_state(m), 1e-3)
-    Ke = Ke + 1e3 * mdl.mass_elements(m)
-    pattern = mdl.assembly(m.structure)
-    values = np.asarray(mdl.assemble_values(m, Ke))
-    f = linsolve._factorize(pattern, values[pattern.upper], "pardiso")
-    handle = linsolve._PARDISO[pattern]
+    f, handle, solves_as_scipy = _pardiso_of_tube((3, 8, 1))  # a pattern no other test analyses
     assert handle.ordering == "metis" and handle.perm is None
     assert handle.factor_mflop["metis"] < handle.factor_mflop["nested dissection"]
-    A = linsolve._csc(pattern, values)
-    b = np.random.default_rng(2).standard_normal(pattern.n)
-    x = f(b)
-    backward = lambda y: np.linalg.norm(A @ y - b) / (sparse_norm(A) * np.linalg.norm(y))  # noqa: E731
-    assert backward(x) <= 10.0 * max(backward(spsolve(A, b)), 1e-17)
+    assert solves_as_scipy(f)
     f.free()
