@@ -362,34 +362,46 @@ def _step_terms(model: Model, scheme, ctx: _StepContext, z):
     return q, E, h, mdl.mass_apply(model, qdd1 + model.damping * v1) - ctx.f_ext
 
 
+def _reduced_residual(model: Model, r_inertia, fe, g, p):
+    """(ru, g) of Eq. (28) from the step's inertia and external terms and the element forces
+    fe (n_el, 32, 3) and volume residuals g (None in the displacement form: empty)."""
+    g = jnp.zeros_like(p) if g is None else g
+    return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g
+
+
 def _residual(model: Model, scheme, ctx: _StepContext, z, p):
     """Eq. (28) at q_{n+1}(z), p: reduced forces (n_free,), element volume residuals
     (n_el, n_p; empty in the displacement form) and the updated Cv."""
     q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
     fe, g, Cv1 = mdl.element_forces(model, q, E, ctx.flow, h, p, ctx.state.wmax)
-    g = jnp.zeros_like(p) if g is None else g
-    return mdl.reduce(model, r_inertia + mdl.scatter_slots(model, fe)), g, Cv1
+    return (*_reduced_residual(model, r_inertia, fe, g, p), Cv1)
 
 
 def _matrix_terms(model: Model, scheme, ctx: _StepContext, z):
-    """(q, E, h, c) of the iteration matrix at z: coordinates, field, step and the mass
-    coefficient c = beta' + gamma' c_d (None without inertia)."""
-    q, E, h, _ = _step_terms(model, scheme, ctx, z)
+    """(q, E, h, c, r) of the iteration matrix at z: coordinates, field, step, the mass
+    coefficient c = beta' + gamma' c_d (None without inertia) and the residual's inertia and
+    external terms r (``_step_terms``)."""
+    q, E, h, r_inertia = _step_terms(model, scheme, ctx, z)
     bp, gp = scheme.matrix_coefficients(h)
-    return q, E, h, (bp + gp * model.damping if scheme.inertial else None)
+    return q, E, h, (bp + gp * model.damping if scheme.inertial else None), r_inertia
 
 
 def _system(model: Model, scheme, ctx: _StepContext, z, p):
     """Element iteration system at (z, p): ElementSystem with Ke = beta' M + gamma' c_d M + K."""
-    q, E, h, c = _matrix_terms(model, scheme, ctx, z)
+    q, E, h, c, _ = _matrix_terms(model, scheme, ctx, z)
     return mdl.element_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
 
 
-def _condensed_system(model: Model, scheme, ctx: _StepContext, z, p):
-    """(Kc, kup, kpp) of the mixed form at (z, p): the iteration matrix of ``_system`` with
-    the pressures condensed (``model.condensed_system``)."""
-    q, E, h, c = _matrix_terms(model, scheme, ctx, z)
-    return mdl.condensed_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
+def _newton_system(model: Model, scheme, ctx: _StepContext, z, p):
+    """(matrices, (ru, g, Cv)): what Newton factorizes at (z, p), ``(Ke,)`` or in the mixed
+    form ``(Kc, kup, kpp)`` with the pressures condensed (``model.condensed_system``), and
+    the residual there (as ``_residual``'s) from the same element evaluation."""
+    q, E, h, c, r_inertia = _matrix_terms(model, scheme, ctx, z)
+    if not model.structure.mixed:
+        s = mdl.element_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
+        return (s.Ke,), (*_reduced_residual(model, r_inertia, s.fe, None, p), s.Cv_new)
+    s = mdl.condensed_system(model, q, E, ctx.flow, h, p, ctx.state.wmax, mass_coefficient=c)
+    return (s.Kc, s.kup, s.kpp), (*_reduced_residual(model, r_inertia, s.fe, s.g, p), s.Cv_new)
 
 
 def _shear_scale(model: Model):
@@ -471,10 +483,10 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
     (custom_jvp)."""
 
     def factor(model, ctx, z, p):
-        if not model.structure.mixed:
-            return (solver.factor(model, _system(model, scheme, ctx, z, p).Ke),)
-        Kc, kup, kpp = _condensed_system(model, scheme, ctx, z, p)
-        return solver.factor(model, Kc), kup, kpp
+        """(fac, (ru, g, Cv)): the iteration matrix's factorization at (z, p) and the
+        residual there, whose forces come with the tangent."""
+        matrices, residual = _newton_system(model, scheme, ctx, z, p)
+        return (solver.factor(model, matrices[0]), *matrices[1:]), residual
 
     def direction(model, fac, ru, g):
         if not model.structure.mixed:
@@ -495,9 +507,11 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
             ok = ok & jnp.isfinite(res)
             return zt, pt, ru, g, Cv, jnp.where(ok, res, jnp.inf), ok
 
-        def line_search(z, p, dz, dp, res, fresh):
+        def line_search(z, p, dz, dp, res, fresh, given):
             """Backtrack from a = 1: admissibility always; Armijo decrease for a fresh direction.
-            (One traced trial: the loop starts at a = 2 with an unacceptable placeholder.)"""
+            (One traced trial: the loop starts at a = 2 with an unacceptable placeholder.)
+            ``given``: the trial's result at a = 1, known already (the start pass's residual
+            from the system's forces), or None (traced: a flag and the result)."""
             c1 = 1e-4
 
             def cond(c):
@@ -511,33 +525,47 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
                 a = 0.5 * a
                 return a, k + 1, trial(z, p, dz, dp, a)
 
-            placeholder = (z, p, jnp.zeros_like(z), jnp.zeros_like(p), ctx.state.Cv, jnp.asarray(jnp.inf),
-                           jnp.asarray(False))
-            a, _, out = jax.lax.while_loop(cond, body, (jnp.asarray(2.0), 0, placeholder))
+            known, (ru, g, Cv, rg, okg) = given
+            # the placeholder's arrays are overwritten by the first trial unless it is known
+            placeholder = (z, p, ru, g, Cv, jnp.where(known, rg, jnp.inf), known & okg)
+            a0, k0 = jnp.where(known, 1.0, 2.0), jnp.where(known, opts.max_backtracks + 1, 0)
+            a, _, out = jax.lax.while_loop(cond, body, (a0, k0, placeholder))
             return a, out
 
         n_z, n_p = z0.size, p0.size
         weights = jnp.concatenate([1.0 / scale, jnp.full(n_p, 1.0 / _shear_scale(model))])
 
         def body(c):
-            z, p, ru, g, Cv, res, res_prev, res0, it, nfac, fac, valid, conv, alive, aa = c
+            z, p, ru, g, Cv, res, res_prev, res0, it, nfac, fac, valid, fresh, conv, alive, aa = c
             # the first pass (it = -1) only evaluates the residual at the starting iterate,
-            # through the same traced trial as the line search (one residual in the program)
+            # through the same traced trial as the line search (one residual in the program),
+            # except where the first iteration factorizes anyway (no valid factorization,
+            # or full Newton): then it factorizes there and takes the residual from the
+            # system's forces (one residual evaluation fewer; an inadmissible start is left
+            # to the trial, which reports it)
             start = it < 0
             slow = (it >= 1) & (res > opts.refactor_rate * res_prev)
-            need = (((~valid) | slow) if opts.reuse else jnp.asarray(True)) & ~start
-            fac = jax.lax.cond(need, lambda: factor(model, ctx, z, p), lambda: fac)
+            first = (~valid) if opts.reuse else jnp.asarray(True)
+            early = start & first & jax.lax.cond(start & first, lambda: _admissible(model, ctx, z),
+                                                 lambda: jnp.asarray(False))
+            # fresh: the factorization in hand was made at the current iterate
+            need = (((~valid) | slow) if opts.reuse else jnp.asarray(True)) & ~start & ~fresh
+            fac, (ru_f, g_f, Cv_f) = jax.lax.cond(need | early, lambda: factor(model, ctx, z, p),
+                                                  lambda: (fac, (ru, g, Cv)))
+            exact = need | fresh  # the direction is Newton's at this iterate
             dz, dp = jax.lax.cond(start, lambda: (jnp.zeros_like(z), jnp.zeros_like(p)),
                                   lambda: direction(model, fac, ru, g))
             if opts.anderson and opts.reuse:
                 x = jnp.concatenate([z, p.reshape(-1)])
-                step, aa_new = _anderson_mix(aa, x, jnp.concatenate([dz, dp.reshape(-1)]), weights, need | start)
+                step, aa_new = _anderson_mix(aa, x, jnp.concatenate([dz, dp.reshape(-1)]), weights, exact | start)
                 aa_new = eqx.tree_at(lambda h: h.count, aa_new, jnp.where(start, -1, aa_new.count))
                 dz, dp = step[:n_z], step[n_z:].reshape(p.shape)
-            a, (zt, pt, rut, gt, Cvt, rest, ok) = line_search(z, p, dz, dp, res, need)
+            res_f = _residual_norm(model, ru_f, g_f)
+            given = (early, (ru_f, g_f, Cv_f, res_f, jnp.isfinite(res_f)))
+            a, (zt, pt, rut, gt, Cvt, rest, ok) = line_search(z, p, dz, dp, res, exact, given)
             # a stale factorization whose step does not reduce the residual is not applied:
             # the iterate is kept and the next iteration refactors
-            accept = ok & (need | start | (rest < res))
+            accept = ok & (exact | start | (rest < res))
             if opts.anderson and opts.reuse:
                 aa = jax.tree.map(lambda n_, o_: jnp.where(accept, n_, o_), aa_new, aa)
             z, p = jnp.where(accept, zt, z), jnp.where(accept, pt, p)
@@ -550,19 +578,20 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
                 conv = accept & ~start & (jnp.max(jnp.abs(a * dz) / scale) <= opts.tol)
             # a fresh direction that cannot be applied ends the iteration (failed step), and
             # so does a starting iterate that is inadmissible or non-finite
-            alive = jnp.where(start, accept, accept | ~need)
+            alive = jnp.where(start, accept, accept | ~exact)
             return (z, p, ru, g, Cv, res_new, jnp.where(accept & ~start, res, res_prev), res0, it + 1,
-                    nfac + need.astype(int), fac, jnp.where(start, valid, accept), conv, alive, aa)
+                    nfac + (need | early).astype(int), fac, jnp.where(start, valid | early, accept),
+                    early & accept, conv, alive, aa)
 
         def cond(c):
-            *_, it, _, _, _, conv, alive, _ = c
+            *_, it, _, _, _, _, conv, alive, _ = c
             return (~conv) & (it < opts.max_iter) & alive
 
         inf = jnp.asarray(jnp.inf)
         c0 = (z0, p0, jnp.zeros_like(z0), jnp.zeros_like(p0), ctx.state.Cv, inf, inf, inf, jnp.asarray(-1),
-              jnp.asarray(0), fac, jnp.asarray(valid), jnp.asarray(False), jnp.asarray(True),
+              jnp.asarray(0), fac, jnp.asarray(valid), jnp.asarray(False), jnp.asarray(False), jnp.asarray(True),
               _anderson_empty(max(opts.anderson, 1), n_z + n_p))
-        z, p, _, _, Cv, _, _, _, it, nfac, fac, _, conv, _, _ = jax.lax.while_loop(cond, body, c0)
+        z, p, _, _, Cv, _, _, _, it, nfac, fac, _, _, conv, _, _ = jax.lax.while_loop(cond, body, c0)
         it = jnp.maximum(it, 0)
         return z, p, it, nfac, conv, fac, Cv
 

@@ -562,13 +562,26 @@ def _condense_of(Ke, kup, kpp):
     return Ke - jnp.einsum("eka,ekb->eab", kup, jnp.linalg.solve(kpp, kup))
 
 
-def condensed_system(model: Model, q, E, Cv_old, dt, p, wmax=None, mass_coefficient=None):
-    """(Kc, kup, kpp) of the mixed form's Newton matrix: the element matrices with the
-    pressures condensed, Kc = Ke - kup^T kpp^-1 kup (n_el, 96, 96), kpp = ``newton_kpp``
-    (arguments as ``element_system``). The same as ``condense`` of ``element_system``'s
-    matrices, but each chunk of elements (``over_element_chunks``) is condensed as it is
-    made, so the uncondensed matrices of the whole mesh are never stored (70 MB on the
-    paper's tube, written, zero-initialized and copied by the chunk loop)."""
+class CondensedSystem(eqx.Module):
+    """The mixed form's Newton matrix with the element pressures condensed, and the element
+    equations it was made with: Kc = Ke - kup^T kpp^-1 kup (n_el, 96, 96), kup (n_el, n_p,
+    96), kpp = ``newton_kpp`` (n_el, n_p, n_p), and at the same iterate the forces fe (n_el,
+    32, 3), volume residuals g (n_el, n_p) and Cv_new (as ``ElementSystem``'s)."""
+
+    Kc: jax.Array
+    kup: jax.Array
+    kpp: jax.Array
+    fe: jax.Array
+    g: jax.Array
+    Cv_new: jax.Array
+
+
+def condensed_system(model: Model, q, E, Cv_old, dt, p, wmax=None, mass_coefficient=None) -> CondensedSystem:
+    """``CondensedSystem`` of the mixed form at (q, p) (arguments as ``element_system``).
+    Kc is ``condense`` of ``element_system``'s matrices, but each chunk of elements
+    (``over_element_chunks``) is condensed as it is made, so the uncondensed matrices of
+    the whole mesh are never stored (70 MB on the paper's tube, written, zero-initialized
+    and copied by the chunk loop)."""
     F = deformation_gradients(model, q)
     body = functools.partial(_condensed_system_of, model.material, _basis(model), model.dNdxi, dt, mass_coefficient)
     return over_element_chunks(body, model.dV, model.dXdxi, model.Jinv, F, E, Cv_old, pressure_at_points(model, p),
@@ -580,7 +593,7 @@ def _condensed_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_ol
     ``newton_kpp``'s block where K = inf, else None)."""
     s = _element_system_of(material, N, dNdxi, dt, c, dV, dXdxi, Jinv, F, E, Cv_old, p, wmax, mass_e)
     kpp = s.kpp if kpp_newton is None else kpp_newton
-    return _condense_of(s.Ke, s.kup, kpp), s.kup, kpp
+    return CondensedSystem(_condense_of(s.Ke, s.kup, kpp), s.kup, kpp, s.fe, s.g, s.Cv_new)
 
 
 def pressure_force(kup, kpp, g):

@@ -694,6 +694,43 @@ def test_anderson_mixing_solves_a_linear_fixed_point_in_memory_plus_one_steps():
     assert mixed[3] < 1e-13 * np.linalg.norm(x_ref), mixed
 
 
+def test_a_step_that_factorizes_first_takes_its_starting_residual_from_the_system(monkeypatch, block):
+    """Where the first iteration factorizes anyway (full Newton, or no valid factorization
+    at the start), the start pass factorizes and takes the starting residual from the
+    system's forces: a step of k iterations evaluates the residual k times (each
+    iteration's trial), and k + 1 times where it starts from a valid factorization (the
+    start pass evaluates it)."""
+    runs = []
+    forces = mdl.element_forces
+
+    def counted(*args, **kwargs):
+        out = forces(*args, **kwargs)
+        jax.debug.callback(lambda x: runs.append(1), out[0][0, 0, 0])
+        return out
+
+    monkeypatch.setattr(mdl, "element_forces", counted)
+    m = block.model
+    loading = block.loading(8e3, 0.1, 2e-5, 0.1)
+    s0 = it.initial_state(m, loading)
+    def one_step(reuse, valid, fac):
+        step = it.make_step(it.GeneralizedAlpha(), it.NewtonOptions(reuse=reuse))
+        runs.clear()
+        new, iterations, factorizations, status, fac1 = jax.jit(
+            lambda s, fac: step(m, loading, s, 1e-2, fac, valid))(s0, fac)
+        jax.effects_barrier()
+        assert int(status) == 0
+        return new, int(iterations), int(factorizations), len(runs), fac1
+
+    empty = it.initial_carry(m, s0, it.DenseSolver()).fac
+    _, k, factorizations, residuals, _ = one_step(False, False, empty)
+    assert k >= 2 and factorizations == k and residuals == k
+    _, k_m, factorizations, residuals, fac = one_step(True, False, empty)
+    assert factorizations >= 1 and residuals == k_m  # the start factorizes
+    # a valid factorization at the start (the one this step ended with): a residual first
+    _, k_v, factorizations, residuals, _ = one_step(True, True, fac)
+    assert residuals == k_v + 1
+
+
 def test_zero_length_steps_of_a_padded_grid_are_skipped(block):
     """A grid padded by repeating its last time (what a fit does so that traces of different
     lengths share one compilation) gives the run on the unpadded grid, then the final

@@ -284,10 +284,13 @@ def test_element_chunks_equal_the_whole_mesh(monkeypatch, volumetric, chunk):
         condensed = jax.jit(mdl.condense)(sys.Ke, sys.kup, sys.kpp) if m.structure.mixed else None
         if m.structure.mixed:  # condensed chunk by chunk as made: the same matrices
             fused = jax.jit(lambda q: mdl.condensed_system(m, q, E, flow, 1e-3, p, None, mass_coefficient=2e5))(q)
-            np.testing.assert_allclose(np.asarray(fused[0]), np.asarray(condensed), rtol=0,
+            np.testing.assert_allclose(np.asarray(fused.Kc), np.asarray(condensed), rtol=0,
                                        atol=1e-13 * float(jnp.max(jnp.abs(condensed))))
-            np.testing.assert_array_equal(np.asarray(fused[1]), np.asarray(sys.kup))
-            np.testing.assert_array_equal(np.asarray(fused[2]), np.asarray(sys.kpp))
+            np.testing.assert_array_equal(np.asarray(fused.kup), np.asarray(sys.kup))
+            np.testing.assert_array_equal(np.asarray(fused.kpp), np.asarray(sys.kpp))
+            for name in ("fe", "g", "Cv_new"):  # the element equations it was made with (another program)
+                a, b = np.asarray(getattr(fused, name)), np.asarray(getattr(sys, name))
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * float(np.max(np.abs(b))))
         return sys, plain, forces, condensed
 
     whole = evaluate()
