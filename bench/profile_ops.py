@@ -2,13 +2,17 @@
 G1's derivative run, traced with ``jax.profiler`` and the operations' durations summed.
 
     python bench/profile_ops.py --case G1 [--steps 100] [--top 25]
+    python bench/profile_ops.py --case N1 --by-path 4
+
 
 Cases (tube 4x8x1, Model IV, 50 kV, 30 Hz, dt = 5e-4 s as ``dejax bench``'s R1 and G1):
 ``R1`` the forward run (step cut-back allowed), ``G1`` ``jax.jacfwd`` of the last-cycle
 mean x_P with respect to the 12 parameters of G1 (user's grid), ``G1R`` the same by one
 reverse pass. Printed: the total operation time (summed over XLA's threads, so it can
 exceed the wall time), the time per operation kind (the HLO name without its number:
-``multiply_reduce_fusion``, ``lu``, ...) and per individual operation. Control flow
+``multiply_reduce_fusion``, ``lu``, ...) and per individual operation. ``N1``: the bench's
+one-iteration full-Newton step of R2 (a fresh factorization per call), per call instead of
+per step. Control flow
 (``while``, ``cond``, ``call``) is listed apart and left out of the total: its span
 contains the operations of its body, which are counted themselves. With
 ``--hlo FILE`` the optimized HLO text, to look an operation up by name (its shapes and
@@ -78,7 +82,50 @@ def by_source(totals, hlo: str) -> collections.Counter:
     return out
 
 
+def by_path(totals, hlo: str, depth: int) -> collections.Counter:
+    """{path: seconds}: each operation's time under the first ``depth`` components of its
+    HLO op_name below the jitted function's own (numbers replaced by #)."""
+    meta = {}
+    for m in re.finditer(r'^\s*(?:ROOT\s+)?%?([\w.\-]+) = [^\n]*?metadata=\{[^}]*op_name="([^"]*)"', hlo, re.M):
+        meta.setdefault(m.group(1), m.group(2))
+    out = collections.Counter()
+    for name, s in totals.items():
+        out[re.sub(r"\d+", "#", "/".join(meta.get(name, "(no metadata)").split("/")[1:1 + depth]))] += s
+    return out
+
+
+class _FreshFactorizations:
+    """f(*args) with the sparse solver's cached factorizations dropped first (N1's call)."""
+
+    def __init__(self, f):
+        self.f = f
+
+    def __call__(self, *args):
+        from dejax import linsolve
+
+        linsolve.clear_factorizations()
+        return self.f(*args)
+
+    def lower(self, *args):
+        return self.f.lower(*args)
+
+
+def n1_function():
+    from dejax import linsolve, scenarios
+
+    p = scenarios.rolled("IV", 30.0, 50e3, shape=(12, 20, 4))
+    m = p.model
+    solv = linsolve.choose_solver(m.structure, "auto")
+    step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=1, line_search=False), solv)
+    s0 = it.initial_state(m, p.loading, 0.0)
+    fac0 = it.initial_carry(m, s0, solv).fac
+    one = jax.jit(lambda s, fac: step(m, p.loading, s, s.t + bench.TUBE_DT, fac, False))
+    return _FreshFactorizations(one), (s0, fac0)
+
+
 def case_function(case: str, steps: int, dt: float = 5e-4):
+    if case == "N1":
+        return n1_function()
     mean_last_cycle, theta0 = bench.g1_objective(steps, dt)
     f = {"R1": lambda th: mean_last_cycle(th, it.StepControl()), "G1": jax.jacfwd(mean_last_cycle),
          "G1R": jax.grad(mean_last_cycle)}[case]
@@ -87,22 +134,27 @@ def case_function(case: str, steps: int, dt: float = 5e-4):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--case", choices=("R1", "G1", "G1R"), default="G1")
+    ap.add_argument("--case", choices=("R1", "G1", "G1R", "N1"), default="G1")
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--hlo", default=None, help="write the optimized HLO text here")
+    ap.add_argument("--by-path", type=int, default=0,
+                    help="also group the operations by the first K components of their op_name (N1: 4)")
     ap.add_argument("--by-source", action="store_true",
                     help="also group the operations by the JAX source they came from (HLO op_name metadata)")
     a = ap.parse_args()
     f, args = case_function(a.case, a.steps)
-    totals = op_times(f, args)
+    if a.case == "N1":
+        a.steps = 1  # per call
+    totals = op_times(f, args, calls=3 if a.case == "N1" else 1)
     kinds, control = collections.Counter(), collections.Counter()
     for name, s in totals.items():
         kind = re.sub(r"\.\d+$", "", name)
         (control if kind in CONTROL else kinds)[kind] += s
     totals = collections.Counter({k: v for k, v in totals.items() if re.sub(r"\.\d+$", "", k) not in CONTROL})
     total = sum(totals.values())
-    print(f"{a.case}, {a.steps} steps: {total:.2f} s of XLA operation time ({1e3 * total / a.steps:.1f} ms per step)")
+    per = "call" if a.case == "N1" else "step"
+    print(f"{a.case}, {a.steps} {per}s: {total:.2f} s of XLA operation time ({1e3 * total / a.steps:.1f} ms per {per})")
     print("control flow (spans include their bodies' operations): "
           + ", ".join(f"{k} {1e3 * v / a.steps:.1f} ms/step" for k, v in control.most_common()))
     print("by kind:")
@@ -111,8 +163,12 @@ def main():
     print("by operation:")
     for k, s in totals.most_common(a.top):
         print(f"  {1e3 * s / a.steps:9.2f} ms/step  {100 * s / total:5.1f} %  {k}")
-    if a.hlo or a.by_source:
+    if a.hlo or a.by_source or a.by_path:
         hlo = f.lower(*args).compile().as_text()
+    if a.by_path:
+        print(f"by the first {a.by_path} components of the op_name:")
+        for k, s in by_path(totals, hlo, a.by_path).most_common(a.top):
+            print(f"  {1e3 * s / a.steps:9.2f} ms/step  {100 * s / total:5.1f} %  {k}")
     if a.by_source:
         print("by source (the op_name's first component inside the step: an einsum, jit(mapped) = the "
               "per-point material law, jvp(...) its tangent lanes, while/body the Newton loop):")

@@ -510,8 +510,8 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
         def line_search(z, p, dz, dp, res, fresh, given):
             """Backtrack from a = 1: admissibility always; Armijo decrease for a fresh direction.
             (One traced trial: the loop starts at a = 2 with an unacceptable placeholder.)
-            ``given``: the trial's result at a = 1, known already (the start pass's residual
-            from the system's forces), or None (traced: a flag and the result)."""
+            ``given`` = (known, (ru, g, Cv, res, ok)): where ``known`` (traced), the result at
+            a = 1 (the start pass's residual from the system's forces), and no trial runs."""
             c1 = 1e-4
 
             def cond(c):
