@@ -111,15 +111,7 @@ class _FreshFactorizations:
 
 
 def n1_function():
-    from dejax import linsolve, scenarios
-
-    p = scenarios.rolled("IV", 30.0, 50e3, shape=(12, 20, 4))
-    m = p.model
-    solv = linsolve.choose_solver(m.structure, "auto")
-    step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=1, line_search=False), solv)
-    s0 = it.initial_state(m, p.loading, 0.0)
-    fac0 = it.initial_carry(m, s0, solv).fac
-    one = jax.jit(lambda s, fac: step(m, p.loading, s, s.t + bench.TUBE_DT, fac, False))
+    _, _, one, s0, fac0 = bench.n1_step()
     return _FreshFactorizations(one), (s0, fac0)
 
 

@@ -383,6 +383,19 @@ def _felupe_iteration() -> dict | None:
                 solver=solver)
 
 
+def n1_step(solver="auto", dt=TUBE_DT):
+    """N1's program: R2's first step (tube 12 x 20 x 4, Model IV) limited to one full-Newton
+    iteration. Returns (problem, solver, step(state, fac) jitted, initial state, empty
+    factorization)."""
+    p = scenarios.rolled("IV", 30.0, 50e3, shape=(12, 20, 4))
+    m = p.model
+    solv = linsolve.choose_solver(m.structure, solver)
+    step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=1, line_search=False), solv)
+    s0 = it.initial_state(m, p.loading, 0.0)
+    fac0 = it.initial_carry(m, s0, solv).fac
+    return p, solv, jax.jit(lambda s, fac: step(m, p.loading, s, s.t + dt, fac, False)), s0, fac0
+
+
 N1_ROUNDS = 3
 """Rounds of N1: dejax's iteration and FElupe's job are timed in turn, each round, so that a
 change of the machine's speed during the case reaches both (``case_N1``)."""
@@ -395,22 +408,17 @@ def case_N1(dt=TUBE_DT, solver="auto", repeat=5, rounds=N1_ROUNDS) -> dict:
     ``repeat``); beside it FElupe's cube when FElupe is installed, timed in the same run.
 
     The two are timed in turn, ``rounds`` times (dejax's best of ``repeat`` calls and its
-    amortized figure, then FElupe's job), and each figure is its best round: on a machine whose speed drifts,
-    timing one after the other gave ratios of 1.24 and 1.91 an hour apart (FElupe 0.78 and
-    0.53 s). ``round_ratios`` are the rounds' own ratios.
+    amortized figure, then FElupe's job), and each figure is its best round: on a machine
+    whose speed drifts, timing one after the other gave ratios of 1.24 and 1.91 an hour
+    apart (FElupe 0.78 and 0.53 s). ``round_ratios`` are the rounds' own ratios.
 
     The sparse solver keeps factorizations by the matrix's values, so repeating the same
     iteration would reuse the first one's: the cache is cleared before every timed call.
     ``without_factorization_s`` times the same call with the factorization cached (what
     an iteration on a reused factorization costs); ``amortized`` times a full-Newton step of
     several iterations per iteration, as FElupe's figure is made (``_amortized_iteration``)."""
-    p = scenarios.rolled("IV", 30.0, 50e3, shape=(12, 20, 4))
+    p, solv, one, s0, fac0 = n1_step(solver, dt)
     m = p.model
-    solv = linsolve.choose_solver(m.structure, solver)
-    step = it.make_step(p.scheme(), it.NewtonOptions(reuse=False, max_iter=1, line_search=False), solv)
-    s0 = it.initial_state(m, p.loading, 0.0)
-    fac0 = it.initial_carry(m, s0, solv).fac
-    one = jax.jit(lambda s, fac: step(m, p.loading, s, s.t + dt, fac, False))
     first, _ = _wall(one, s0, fac0, fresh=True)
     amortized_step = _amortized_iteration(p, solv, s0, fac0, dt)
     ours, amortized, peers = [], [], []

@@ -542,7 +542,9 @@ def _make_newton(scheme, opts: NewtonOptions, solver: LinearSolver):
             # except where the first iteration factorizes anyway (no valid factorization,
             # or full Newton): then it factorizes there and takes the residual from the
             # system's forces (one residual evaluation fewer; an inadmissible start is left
-            # to the trial, which reports it)
+            # to the trial, which reports it). A start already at the residual's floor (a
+            # model at rest) is then factorized as well: with full Newton one factorization
+            # per such step, where modified Newton keeps it for the steps that follow
             start = it < 0
             slow = (it >= 1) & (res > opts.refactor_rate * res_prev)
             first = (~valid) if opts.reuse else jnp.asarray(True)
