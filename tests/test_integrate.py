@@ -712,6 +712,7 @@ def test_a_step_that_factorizes_first_takes_its_starting_residual_from_the_syste
     m = block.model
     loading = block.loading(8e3, 0.1, 2e-5, 0.1)
     s0 = it.initial_state(m, loading)
+
     def one_step(reuse, valid, fac):
         step = it.make_step(it.GeneralizedAlpha(), it.NewtonOptions(reuse=reuse))
         runs.clear()
