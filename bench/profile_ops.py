@@ -4,7 +4,6 @@ G1's derivative run, traced with ``jax.profiler`` and the operations' durations 
     python bench/profile_ops.py --case G1 [--steps 100] [--top 25]
     python bench/profile_ops.py --case N1 --by-path 4
 
-
 Cases (tube 4x8x1, Model IV, 50 kV, 30 Hz, dt = 5e-4 s as ``dejax bench``'s R1 and G1):
 ``R1`` the forward run (step cut-back allowed), ``G1`` ``jax.jacfwd`` of the last-cycle
 mean x_P with respect to the 12 parameters of G1 (user's grid), ``G1R`` the same by one
@@ -12,12 +11,12 @@ reverse pass. Printed: the total operation time (summed over XLA's threads, so i
 exceed the wall time), the time per operation kind (the HLO name without its number:
 ``multiply_reduce_fusion``, ``lu``, ...) and per individual operation. ``N1``: the bench's
 one-iteration full-Newton step of R2 (a fresh factorization per call), per call instead of
-per step. Control flow
-(``while``, ``cond``, ``call``) is listed apart and left out of the total: its span
-contains the operations of its body, which are counted themselves. With
-``--hlo FILE`` the optimized HLO text, to look an operation up by name (its shapes and
-the jaxpr path in its metadata); with ``--by-source`` the time grouped by that path
-(``by_source``). After one untraced call (compilation).
+per step. Control flow (``while``, ``cond``, ``call``) is listed apart and left out of the
+total: its span contains the operations of its body, which are counted themselves. With
+``--hlo FILE`` the optimized HLO text, to look an operation up by name (its shapes and the
+jaxpr path in its metadata); with ``--by-source`` the time grouped by that path
+(``by_source``), with ``--by-path K`` by its first K components. After one untraced call
+(compilation).
 """
 from __future__ import annotations
 
@@ -60,14 +59,20 @@ def op_times(f, args, calls: int = 1):
     return totals
 
 
+def op_names(hlo: str) -> dict:
+    """{operation name: its op_name metadata (the JAX source path)} of optimized HLO text."""
+    meta = {}
+    for m in re.finditer(r'^\s*(?:ROOT\s+)?%?([\w.\-]+) = [^\n]*?metadata=\{[^}]*op_name="([^"]*)"', hlo, re.M):
+        meta.setdefault(m.group(1), m.group(2))
+    return meta
+
+
 def by_source(totals, hlo: str) -> collections.Counter:
     """{source: seconds}: each operation's time under the JAX source its HLO metadata names,
     cut to the part inside a step (after the step's last ``branch_1_fun/``, the cut-back
     branch that runs it) and to its first component (two for ``while``/``vmap()``); "outside
     the step" for the rest. A heuristic for reading a profile, not an exact attribution."""
-    meta = {}
-    for m in re.finditer(r'^\s*(?:ROOT\s+)?%?([\w.\-]+) = [^\n]*?metadata=\{[^}]*op_name="([^"]*)"', hlo, re.M):
-        meta.setdefault(m.group(1), m.group(2))
+    meta = op_names(hlo)
     out = collections.Counter()
     for name, s in totals.items():
         path = meta.get(name)
@@ -85,9 +90,7 @@ def by_source(totals, hlo: str) -> collections.Counter:
 def by_path(totals, hlo: str, depth: int) -> collections.Counter:
     """{path: seconds}: each operation's time under the first ``depth`` components of its
     HLO op_name below the jitted function's own (numbers replaced by #)."""
-    meta = {}
-    for m in re.finditer(r'^\s*(?:ROOT\s+)?%?([\w.\-]+) = [^\n]*?metadata=\{[^}]*op_name="([^"]*)"', hlo, re.M):
-        meta.setdefault(m.group(1), m.group(2))
+    meta = op_names(hlo)
     out = collections.Counter()
     for name, s in totals.items():
         out[re.sub(r"\d+", "#", "/".join(meta.get(name, "(no metadata)").split("/")[1:1 + depth]))] += s
